@@ -1,0 +1,110 @@
+"""Arm end-effector references turned into the MPC's velocity command by position feedback.
+
+The MPC constrains the end-effector *velocity* (world axes). To track a *position* reference the command is
+
+.. math::  v^{cmd} = \\dot p^{ref}(t) + K_p\\,(p^{ref}(t) - p_{ee}),
+
+with the reference expressed in the heading frame of the robot (origin below the base at the ground,
+x forward, z up, rotating with the base yaw), so that it travels with the robot while it walks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.mpc import heading
+
+
+@dataclass
+class ArmReference:
+    """A smooth reference in the heading frame: ``p(t) = center + amplitude * sin(2 pi t / period + phase)``.
+
+    The default moves the end effector 20 cm down and up around its start position (low and high) with a
+    5 cm fore-aft motion.
+
+    Attributes:
+        center: Mean position [m] in the heading frame (x forward of the base, z above ground); ``None``
+            means the start position of the end effector (see :meth:`centered_at`).
+        amplitude: Per-axis amplitude [m].
+        period: Period [s] of the motion.
+        phase: Per-axis phase [rad].
+        ramp: Duration [s] over which the amplitude ramps up from 0 (smooth start).
+    """
+
+    center: tuple[float, float, float] | None = None
+    amplitude: tuple[float, float, float] = (0.05, 0.0, 0.2)
+    period: float = 5.0
+    phase: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ramp: float = 1.0
+
+    def __post_init__(self):
+        if self.period <= 0 or not np.isfinite(self.period):
+            raise ValueError(f"ArmReference period must be > 0, got {self.period}")
+
+    def centered_at(self, q: np.ndarray, ee_position: np.ndarray) -> ArmReference:
+        """This reference with its centre at a world position, expressed in the heading frame of ``q``."""
+        R, origin = heading_frame(q)
+        return replace(self, center=tuple(R.T @ (np.asarray(ee_position) - origin)))
+
+    def local(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position [m] and velocity [m/s] of the reference in the heading frame at time ``t``."""
+        w = 2 * np.pi / self.period
+        arg = w * t + np.asarray(self.phase)
+        amp = np.asarray(self.amplitude)
+        if self.center is None:
+            raise ValueError("ArmReference.center is None: call centered_at(q, ee_position) first")
+        if self.ramp > 0 and t < self.ramp:
+            # Smoothstep ramp s(t) so that the reference starts at rest.
+            x = t / self.ramp
+            s, ds = 3 * x**2 - 2 * x**3, (6 * x - 6 * x**2) / self.ramp
+        else:
+            s, ds = 1.0, 0.0
+        p = np.asarray(self.center) + s * amp * np.sin(arg)
+        v = s * amp * w * np.cos(arg) + ds * amp * np.sin(arg)
+        return p, v
+
+
+def heading_frame(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (yaw only) and origin (base x, y at z = 0) of the heading frame of configuration ``q``."""
+    R = pin.rpy.rpyToMatrix(0.0, 0.0, heading(q))
+    return R, np.array([q[0], q[1], 0.0])
+
+
+def world_reference(reference: ArmReference, q: np.ndarray, t: float) -> np.ndarray:
+    """Reference position [m] in the world at time ``t`` for the measured base configuration ``q``."""
+    R, origin = heading_frame(q)
+    return origin + R @ reference.local(t)[0]
+
+
+def velocity_command(
+    reference: ArmReference,
+    q: np.ndarray,
+    ee_position: np.ndarray,
+    t: float,
+    base_velocity_world: np.ndarray,
+    kp: float = 4.0,
+    max_speed: float = 0.6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """End-effector velocity command [m/s] (world) and the world reference position [m].
+
+    Args:
+        reference: The reference in the heading frame.
+        q: Measured configuration.
+        ee_position: Measured end-effector position [m], world.
+        t: Time [s].
+        base_velocity_world: Commanded base linear velocity [m/s] in world axes (feed-forward of the
+            moving heading frame).
+        kp: Position gain [1/s].
+        max_speed: Norm cap [m/s] on the command (keeps a hard velocity constraint feasible).
+    """
+    R, origin = heading_frame(q)
+    p_local, v_local = reference.local(t)
+    p_ref = origin + R @ p_local
+    v = R @ v_local + np.array([base_velocity_world[0], base_velocity_world[1], 0.0]) + kp * (p_ref - ee_position)
+    speed = np.linalg.norm(v)
+    if speed > max_speed:
+        v *= max_speed / speed
+    return v, p_ref

@@ -1,0 +1,79 @@
+"""The 500 Hz joint-level controller between two MPC solutions (paper, Sec. V-B).
+
+Between MPC updates the first nodes of the latest plan are interpolated linearly,
+
+.. math::
+    \\tau_{ff}(t) = \\tau_k^* + \\frac{\\tau_{k+1}^* - \\tau_k^*}{\\delta t_k}(t - t_k),\\quad
+    q_{des}(t) = q_k^* + v_k^*(t - t_k),\\quad v_{des}(t) = v_k^* + a_k^*(t - t_k),
+
+on the interval ``[t_k, t_{k+1}]`` that contains ``t`` (node 0 first; if no new plan arrived by ``t_1``
+the controller moves on to the interval of node 1, and so on while torques exist), and a PD term closes
+the loop at joint level:
+
+.. math::  \\tau = \\tau_{ff} + K_p (q_{des} - q) + K_d (v_{des} - v).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wbmpc.mpc import MPCSolution
+
+
+@dataclass
+class JointCommand:
+    """Interpolated joint references at one instant (joint space only, nj each)."""
+
+    tau_ff: np.ndarray
+    q_des: np.ndarray
+    v_des: np.ndarray
+
+
+class LowLevelController:
+    """Interpolates the latest MPC plan and applies joint PD feedback.
+
+    Args:
+        kp: Joint stiffness [N m/rad], scalar or (nj,).
+        kd: Joint damping [N m s/rad], scalar or (nj,).
+        torque_limits: Symmetric limits [N m] (nj,) the motor command is clipped to (the motors' own limit).
+    """
+
+    def __init__(self, kp=0.0, kd=0.0, torque_limits: np.ndarray | None = None):
+        self.kp, self.kd = kp, kd
+        self.torque_limits = torque_limits
+        self.plan: MPCSolution | None = None
+        self.clipped = 0
+
+    def update(self, plan: MPCSolution) -> None:
+        """Hand over a new plan (the controller keeps interpolating the last one until then)."""
+        self.plan = plan
+
+    def reference(self, t: float) -> JointCommand:
+        """Interpolated feed-forward torque and joint references at time ``t`` [s]."""
+        plan = self.plan
+        if plan is None:
+            raise RuntimeError("LowLevelController has no MPC plan yet: call update() first")
+        times = plan.node_times
+        n_tau = len(plan.tau)
+        # Interval index: stay on the last interval that has a torque at both ends, hold beyond it.
+        k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, max(n_tau - 2, 0)))
+        s = t - times[k]
+        if n_tau >= 2:
+            tau_ff = plan.tau[k] + (plan.tau[k + 1] - plan.tau[k]) * min(s, plan.dts[k]) / plan.dts[k]
+        else:
+            tau_ff = plan.tau[0]
+        q_des = plan.q[k][7:] + plan.v[k][6:] * s
+        v_des = plan.v[k][6:] + plan.a[k][6:] * s
+        return JointCommand(tau_ff, q_des, v_des)
+
+    def torque(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Motor torque command (nj,) [N m] at time ``t`` for the measured joint state in ``q``, ``v``."""
+        ref = self.reference(t)
+        tau = ref.tau_ff + self.kp * (ref.q_des - q[7:]) + self.kd * (ref.v_des - v[6:])
+        if self.torque_limits is not None:
+            clipped = np.clip(tau, -self.torque_limits, self.torque_limits)
+            self.clipped += int(np.any(clipped != tau))
+            tau = clipped
+        return tau

@@ -1,0 +1,418 @@
+"""The whole-body MPC: commands and measured state in, a warm-started Fatrop (or IPOPT) solve, a plan out.
+
+:class:`WholeBodyMPC` owns one :class:`wbmpc.ocp.OCP` and its solver. Everything a user changes between
+solves (state, commands, gait and swing parameters, weights, time steps, friction) is a runtime parameter:
+changing it never rebuilds anything. A failed or non-converged solve never raises inside a loop: the
+result says so, the failure is counted, and :meth:`WholeBodyMPC.solve` returns the previous plan shifted
+in time (the fallback) so a controller can keep interpolating it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.gait import Gait, SwingParams, default_force_distribution, make_gait, swing_vertical_velocity
+from wbmpc.ocp import OCP, OCPSettings
+from wbmpc.robot import Robot
+from wbmpc.statics import static_equilibrium
+from wbmpc.time_grid import geometric_time_steps, node_times
+
+SOLVERS = ("fatrop", "ipopt")
+
+
+def default_weights(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal state and input weights ``Q`` (2 nv,) and ``R`` (nv + n_f + nj,) after the paper's code.
+
+    State ``[dq, v]``: base position (x, y free; z 1e3), roll/pitch 1e4, yaw free; leg joints
+    hip/thigh/calf 1000/500/500; arm joints 100; base velocity 2000 (lin x, y), 1000 (lin z, ang x, y),
+    2000 (yaw rate); leg joint velocity 2; arm joint velocity 10. Inputs ``[a, F, tau]``: 1e-3, 5e-4,
+    1e-4 (legs) and 1e-2 (arm).
+    """
+    n_arm = len(robot.arm_joint_names)
+    n_leg = robot.nj - n_arm
+    leg_pos = np.tile([1000.0, 500.0, 500.0], n_leg // 3) if n_leg % 3 == 0 else np.full(n_leg, 500.0)
+    Q = np.concatenate(
+        [
+            [0.0, 0.0, 1000.0, 10000.0, 10000.0, 0.0],
+            leg_pos,
+            np.full(n_arm, 100.0),
+            [2000.0, 2000.0, 1000.0, 1000.0, 1000.0, 2000.0],
+            np.full(n_leg, 2.0),
+            np.full(n_arm, 10.0),
+        ]
+    )
+    R = np.concatenate(
+        [
+            np.full(robot.nv, 1e-3),
+            np.full(3 * len(robot.contact_frames), 5e-4),
+            np.full(n_leg, 1e-4),
+            np.full(n_arm, 1e-2),
+        ]
+    )
+    return Q, R
+
+
+@dataclass
+class Commands:
+    """What the user asks of the robot for one solve.
+
+    Attributes:
+        base_linear_velocity: Base linear velocity [m/s] in the heading frame (x forward, y left, z up).
+        base_angular_velocity: Base angular velocity [rad/s] in the heading frame (yaw rate is z).
+        ee_velocity: Arm end-effector linear velocity [m/s], world axes.
+        ee_force: Force [N] the environment applies on the end effector, world axes (e.g. a pulled load
+            pulls back: negative x when the robot pulls towards +x).
+        base_height: Nominal base height [m]; ``None`` keeps the robot's nominal pose height.
+    """
+
+    base_linear_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    base_angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ee_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ee_force: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    base_height: float | None = None
+
+    def validated(self) -> Commands:
+        out = {}
+        for name in ("base_linear_velocity", "base_angular_velocity", "ee_velocity", "ee_force"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (3,):
+                raise ValueError(f"command {name} must have shape (3,), got {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"command {name} contains NaN or inf: {value}")
+            out[name] = value
+        return replace(self, **out)
+
+
+@dataclass
+class MPCConfig:
+    """Runtime configuration (every field can change between solves without a rebuild, except solver).
+
+    Attributes:
+        gait: Gait schedule (see :func:`wbmpc.gait.make_gait`).
+        swing: Swing-foot spline parameters.
+        dt_min, dt_max: First and last time step [s] of the geometric grid (equal: uniform grid).
+        mu: Friction coefficient of the cone constraint.
+        Q, R: Diagonal weights; ``None`` uses :func:`default_weights`.
+        front_force_ratio: Share of the weight the force targets put on the front feet.
+        solver: ``"fatrop"`` or ``"ipopt"`` (structural: fixed at construction).
+        tol: Solver tolerance (paper: 1e-3).
+        max_iter: Iteration cap of a warm-started solve.
+        cold_max_iter: Iteration cap of the first (cold) solve.
+        mu_init_warm, mu_init_cold: Initial barrier parameter for warm and cold starts.
+        dual_warm_start: Pass the previous constraint multipliers as the initial dual guess.
+    """
+
+    gait: Gait = field(default_factory=lambda: make_gait("trot", 0.8))
+    swing: SwingParams = field(default_factory=SwingParams)
+    dt_min: float = 0.01
+    dt_max: float = 0.1
+    mu: float = 0.7
+    Q: np.ndarray | None = None
+    R: np.ndarray | None = None
+    front_force_ratio: float | None = None
+    solver: str = "fatrop"
+    tol: float = 1e-3
+    max_iter: int = 20
+    cold_max_iter: int = 200
+    mu_init_warm: float = 1e-4
+    mu_init_cold: float = 1e-1
+    dual_warm_start: bool = True
+
+
+@dataclass
+class MPCSolution:
+    """A plan over the horizon, in absolute quantities.
+
+    Attributes:
+        t: Time [s] of node 0 (the measurement time).
+        dts: Time steps [s] (N-1,).
+        q: Configurations (N, nq); v: velocities (N, nv); a: accelerations (N-1, nv).
+        forces: Contact forces on the robot (N-1, n_c, 3) [N], world axes; swing feet already zeroed.
+        tau: Joint torques (n_tau, nj) [N m].
+        contact: Contact flags (4, N-1).
+        success: Whether the solver converged. iterations, solve_time [s], status: solver report.
+        constraint_violation: Max bound violation of the constraints at the returned point.
+        fallback: True if this is the previous plan re-used after a failed solve.
+        w, lam_g: Raw primal and constraint-multiplier vectors (for warm starts).
+    """
+
+    t: float
+    dts: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    forces: np.ndarray
+    tau: np.ndarray
+    contact: np.ndarray
+    success: bool
+    iterations: int
+    solve_time: float
+    status: str
+    constraint_violation: float
+    fallback: bool = False
+    w: np.ndarray | None = None
+    lam_g: np.ndarray | None = None
+
+    @property
+    def node_times(self) -> np.ndarray:
+        return node_times(self.dts, self.t)
+
+
+class WholeBodyMPC:
+    """Whole-body inverse-dynamics MPC (build once, solve many times).
+
+    Args:
+        robot: The robot.
+        settings: Structural OCP settings (nodes, torque nodes, formulation).
+        config: Runtime configuration.
+    """
+
+    def __init__(self, robot: Robot, settings: OCPSettings | None = None, config: MPCConfig | None = None):
+        self.robot = robot
+        self.config = config or MPCConfig()
+        if self.config.solver not in SOLVERS:
+            raise ValueError(f"unknown solver {self.config.solver!r}; available: {list(SOLVERS)}")
+        self.ocp = OCP(robot, settings)
+        self.n_nodes = self.ocp.n_nodes
+        self._solvers = {}
+        self.previous: MPCSolution | None = None
+        self.stats = {"solves": 0, "failures": 0, "exceptions": 0}
+        self._data = robot.model.createData()
+
+    # --- solver construction --------------------------------------------------------------------------------
+    def _solver(self, cold: bool) -> ca.Function:
+        cfg = self.config
+        key = (cfg.solver, cold)
+        if key not in self._solvers:
+            max_iter = cfg.cold_max_iter if cold else cfg.max_iter
+            mu_init = cfg.mu_init_cold if cold else cfg.mu_init_warm
+            if cfg.solver == "fatrop":
+                inner = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init}
+                if not cold:
+                    # The casadi 3.8.2 Fatrop plugin accepts bound_push but not the warm_start_* options.
+                    inner["bound_push"] = 1e-7
+                opts = {
+                    "expand": True,
+                    "structure_detection": "auto",
+                    "equality": self.ocp.equality,
+                    "print_time": False,
+                    "fatrop": inner,
+                }
+            else:
+                ipopt = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init, "sb": "yes"}
+                if not cold:
+                    ipopt |= {"warm_start_init_point": "yes", "warm_start_bound_push": 1e-7,
+                              "warm_start_mult_bound_push": 1e-7}
+                opts = {"expand": True, "print_time": False, "ipopt": ipopt}
+            self._solvers[key] = ca.nlpsol(f"wbmpc_{cfg.solver}", cfg.solver, self.ocp.nlp, opts)
+        return self._solvers[key]
+
+    # --- parameters -----------------------------------------------------------------------------------------
+    def time_steps(self) -> np.ndarray:
+        return geometric_time_steps(self.n_nodes, self.config.dt_min, self.config.dt_max)
+
+    def desired_configuration(self, q_hat: np.ndarray, commands: Commands) -> np.ndarray:
+        """Nominal pose at the measured base x, y and heading, level base at the nominal height."""
+        q_des = self.robot.q_nominal
+        yaw = heading(q_hat)
+        q_des[0:2] = q_hat[0:2]
+        if commands.base_height is not None:
+            q_des[2] = commands.base_height
+        q_des[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.0, 0.0, yaw)).coeffs()
+        return q_des
+
+    def parameters(self, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands: Commands) -> dict:
+        """Numeric values of every OCP parameter block for a solve at time ``t`` [s]."""
+        cfg, robot = self.config, self.robot
+        dts = self.time_steps()
+        t_nodes = node_times(dts, t)[:-1]
+        sample = cfg.gait.sample(t_nodes)
+        contact = sample.contact.astype(float)
+        swing_vz = np.where(
+            sample.contact,
+            0.0,
+            swing_vertical_velocity(
+                sample.swing_phase, cfg.gait.swing_duration or 1.0, cfg.swing.height, cfg.swing.v_liftoff,
+                cfg.swing.v_touchdown,
+            ),
+        )
+        ratio = robot.front_force_ratio if cfg.front_force_ratio is None else cfg.front_force_ratio
+        # The vertical targets carry the weight plus the commanded end-effector load.
+        weight = robot.mass * robot.gravity - commands.ee_force[2]
+        force_des = default_force_distribution(sample.contact, weight / robot.gravity, robot.gravity, ratio)
+        R_base = pin.Quaternion(q_hat[3:7]).normalized().toRotationMatrix()
+        R_heading = pin.rpy.rpyToMatrix(0.0, 0.0, heading(q_hat))
+        v_des = np.zeros(robot.nv)
+        v_des[0:3] = R_base.T @ R_heading @ commands.base_linear_velocity
+        v_des[3:6] = R_base.T @ R_heading @ commands.base_angular_velocity
+        Q_default, R_default = default_weights(robot)
+        return {
+            "q_hat": q_hat,
+            "v_hat": v_hat,
+            "dq_des": pin.difference(robot.model, q_hat, self.desired_configuration(q_hat, commands)),
+            "v_des": v_des,
+            "dt_min": cfg.dt_min,
+            "dt_max": cfg.dt_max,
+            "contact": contact,
+            "swing_vz": swing_vz,
+            "force_des": force_des,
+            "ee_velocity": commands.ee_velocity,
+            "ee_force": commands.ee_force,
+            "mu": cfg.mu,
+            "Q": Q_default if cfg.Q is None else cfg.Q,
+            "R": R_default if cfg.R is None else cfg.R,
+        }
+
+    # --- initial guesses --------------------------------------------------------------------------------------
+    def cold_guess(self, q_hat: np.ndarray, v_hat: np.ndarray, params: dict) -> np.ndarray:
+        """A physically consistent start: hold the measured state, static forces and torques on every node."""
+        N, nv = self.n_nodes, self.robot.nv
+        contact = params["contact"] > 0.5
+        forces, taus = [], []
+        for k in range(N - 1):
+            try:
+                eq = static_equilibrium(self.robot, q_hat, contact[:, k], ee_force=params["ee_force"])
+                f, tau = eq.forces, eq.tau
+            except ValueError:  # no stance foot on this node: no static solution, zero forces
+                f, tau = np.zeros((self.robot.n_feet, 3)), np.zeros(self.robot.nj)
+            if self.robot.has_arm:
+                f = np.vstack([f, params["ee_force"]])
+            forces.append(f)
+            taus.append(tau)
+        n_tau = self.ocp.settings.n_tau_nodes
+        return self.ocp.join(
+            np.zeros((N, nv)), np.tile(v_hat, (N, 1)), np.zeros((N - 1, nv)), np.array(forces), np.array(taus[:n_tau])
+        )
+
+    def shifted_guess(self, previous: MPCSolution, q_hat: np.ndarray, t: float, params: dict) -> np.ndarray:
+        """Previous plan interpolated on the new node times, re-expressed around ``q_hat``; forces re-initialised.
+
+        Forces get the targets (weight over the stance feet, zero on swing feet, the commanded arm force)
+        because the adaptive grid shifts contact switches between solves (paper, Sec. V-A).
+        """
+        model = self.robot.model
+        N = self.n_nodes
+        t_new = node_times(self.time_steps(), t)
+        t_old = previous.node_times
+        # Express the old configurations in the old chart and interpolate there (linear in the tangent).
+        q_ref = previous.q[0]
+        dq_old = np.array([pin.difference(model, q_ref, q) for q in previous.q])
+        dq_interp = _interp_rows(t_new, t_old, dq_old)
+        q_new = [pin.integrate(model, q_ref, d) for d in dq_interp]
+        dq = np.array([pin.difference(model, q_hat, q) for q in q_new])
+        dq[0] = 0.0
+        v = _interp_rows(t_new, t_old, previous.v)
+        v[0] = params["v_hat"]
+        a = _interp_rows(t_new[:-1], t_old[:-1], previous.a)
+        tau = _interp_rows(t_new[: len(previous.tau)], t_old[: len(previous.tau)], previous.tau)
+        forces = np.zeros((N - 1, len(self.robot.contact_frames), 3))
+        forces[:, : self.robot.n_feet, 2] = params["force_des"].T
+        if self.robot.has_arm:
+            forces[:, -1] = params["ee_force"]
+        return self.ocp.join(dq, v, a, forces, tau)
+
+    # --- solve ----------------------------------------------------------------------------------------------
+    def solve(self, q_hat: np.ndarray, v_hat: np.ndarray, t: float = 0.0, commands: Commands | None = None,
+              warm_start: bool = True) -> MPCSolution:
+        """Solve the OCP from the measured state.
+
+        Args:
+            q_hat: Measured configuration (nq,).
+            v_hat: Measured velocity (nv,).
+            t: Time [s] (sets the gait phase).
+            commands: Tracking commands; zero velocities and forces by default.
+            warm_start: Start from the previous plan if there is one (else a cold start).
+
+        Returns:
+            The new plan, or the previous one shifted in time with ``fallback=True`` if the solve failed.
+
+        Raises:
+            ValueError: wrong shape or NaN in the state or the commands (bad input, not a solver failure).
+        """
+        q_hat = _checked("q_hat", q_hat, self.robot.nq)
+        v_hat = _checked("v_hat", v_hat, self.robot.nv)
+        q_hat = q_hat.copy()
+        q_hat[3:7] /= np.linalg.norm(q_hat[3:7])
+        commands = (commands or Commands()).validated()
+        params = self.parameters(q_hat, v_hat, t, commands)
+        p = self.ocp.params.pack(params)
+        cold = not (warm_start and self.previous is not None and not self.previous.fallback)
+        if cold and warm_start and self.previous is not None:
+            cold = False  # a fallback plan is still the best guess we have
+        x0 = self.cold_guess(q_hat, v_hat, params) if cold else self.shifted_guess(self.previous, q_hat, t, params)
+        solver = self._solver(cold)
+        args = {"x0": x0, "p": p, "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
+        if not cold and self.config.dual_warm_start and self.previous.lam_g is not None:
+            args["lam_g0"] = self.previous.lam_g
+        self.stats["solves"] += 1
+        start = time.perf_counter()
+        try:
+            out = solver(**args)
+            stats = solver.stats()
+            elapsed = time.perf_counter() - start
+            w = np.array(out["x"]).ravel()
+            g = np.array(out["g"]).ravel()
+            violation = float(np.max(np.maximum(0.0, np.maximum(self.ocp.lbg - g, g - self.ocp.ubg))))
+            success = bool(stats.get("success", False)) and np.all(np.isfinite(w))
+            status = str(stats.get("return_status", "unknown"))
+            iterations = int(stats.get("iter_count", -1))
+            lam_g = np.array(out["lam_g"]).ravel()
+        except RuntimeError as exc:  # the solver raised (e.g. NaN in an evaluation): counted, not fatal
+            elapsed = time.perf_counter() - start
+            self.stats["exceptions"] += 1
+            success, status, iterations, violation, w, lam_g = False, f"exception: {exc}", -1, np.inf, None, None
+        if not success:
+            self.stats["failures"] += 1
+            if self.previous is not None:
+                fallback = replace(self.previous, fallback=True, success=False, status=status, iterations=iterations,
+                                   solve_time=elapsed, constraint_violation=violation)
+                return fallback
+            if w is None:
+                w = x0
+        solution = self._solution(w, lam_g, q_hat, t, params, success, iterations, elapsed, status, violation)
+        self.previous = solution
+        return solution
+
+    def _solution(self, w, lam_g, q_hat, t, params, success, iterations, elapsed, status, violation) -> MPCSolution:
+        parts = self.ocp.split(w)
+        model = self.robot.model
+        q = np.array([pin.integrate(model, q_hat, d) for d in parts["dq"]])
+        forces = parts["forces"].copy()
+        forces[:, : self.robot.n_feet] *= params["contact"].T[:, :, None]
+        return MPCSolution(
+            t=t, dts=self.time_steps(), q=q, v=parts["v"], a=parts["a"], forces=forces, tau=parts["tau"],
+            contact=params["contact"] > 0.5, success=success, iterations=iterations, solve_time=elapsed,
+            status=status, constraint_violation=violation, w=w, lam_g=lam_g,
+        )
+
+    def reset(self) -> None:
+        """Forget the previous plan (the next solve is a cold start)."""
+        self.previous = None
+
+
+def heading(q: np.ndarray) -> float:
+    """Yaw angle [rad] of the base (rotation about world z of its x axis)."""
+    R = pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
+    return float(np.arctan2(R[1, 0], R[0, 0]))
+
+
+def _checked(name: str, value, size: int) -> np.ndarray:
+    value = np.asarray(value, dtype=float)
+    if value.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got {value.shape}")
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return value
+
+
+def _interp_rows(t_new: np.ndarray, t_old: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Linear interpolation of each column of ``rows`` (len(t_old), n) at ``t_new`` (held at the ends)."""
+    rows = np.asarray(rows)
+    if rows.size == 0:
+        return rows
+    return np.column_stack([np.interp(t_new, t_old, rows[:, j]) for j in range(rows.shape[1])])
