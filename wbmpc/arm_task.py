@@ -22,8 +22,9 @@ from wbmpc.mpc import heading
 class ArmReference:
     """A smooth reference in the heading frame: ``p(t) = center + amplitude * sin(2 pi t / period + phase)``.
 
-    The default moves the end effector 20 cm down and up around its start position (low and high) with a
-    5 cm fore-aft motion.
+    The default moves the end effector 15 cm down and up around its start position (low and high) with a
+    5 cm fore-aft motion. (At 20 cm the Z1 elbow reaches its limit at the low point while the paper's
+    weights keep the base level; some solves then hit the iteration cap.)
 
     Attributes:
         center: Mean position [m] in the heading frame (x forward of the base, z above ground); ``None``
@@ -35,7 +36,7 @@ class ArmReference:
     """
 
     center: tuple[float, float, float] | None = None
-    amplitude: tuple[float, float, float] = (0.05, 0.0, 0.2)
+    amplitude: tuple[float, float, float] = (0.05, 0.0, 0.15)
     period: float = 5.0
     phase: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ramp: float = 1.0
@@ -86,9 +87,16 @@ def velocity_command(
     t: float,
     base_velocity_world: np.ndarray,
     kp: float = 4.0,
+    node_times: np.ndarray | None = None,
     max_speed: float = 0.6,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """End-effector velocity command [m/s] (world) and the world reference position [m].
+    """End-effector velocity command [m/s] (world) and the world reference position [m] at ``t``.
+
+    Without ``node_times`` the command is the paper's: one velocity held over the horizon,
+    ``v = pdot_ref(t) + Kp e(t)``. With the MPC's node times ``t_k`` it is one command per stage,
+    ``v_k = pdot_ref(t_k) + Kp e(t) exp(-Kp (t_k - t))``: the reference's own future velocity plus the
+    decaying correction of the current error, so the plan does not overshoot where the reference slows
+    down (e.g. at its lowest point, near the arm's joint limits).
 
     Args:
         reference: The reference in the heading frame.
@@ -98,13 +106,21 @@ def velocity_command(
         base_velocity_world: Commanded base linear velocity [m/s] in world axes (feed-forward of the
             moving heading frame).
         kp: Position gain [1/s].
-        max_speed: Norm cap [m/s] on the command (keeps a hard velocity constraint feasible).
+        node_times: Times [s] of the MPC stages (N-1,), or ``None`` for a single command.
+        max_speed: Norm cap [m/s] on each command (keeps a hard velocity constraint feasible).
+
+    Returns:
+        ``(v, p_ref)``: command (3,) or (3, N-1), and the reference position (3,).
     """
     R, origin = heading_frame(q)
-    p_local, v_local = reference.local(t)
-    p_ref = origin + R @ p_local
-    v = R @ v_local + np.array([base_velocity_world[0], base_velocity_world[1], 0.0]) + kp * (p_ref - ee_position)
-    speed = np.linalg.norm(v)
-    if speed > max_speed:
-        v *= max_speed / speed
-    return v, p_ref
+    p_ref = origin + R @ reference.local(t)[0]
+    error = p_ref - np.asarray(ee_position)
+    carry = np.array([base_velocity_world[0], base_velocity_world[1], 0.0])
+    times = np.array([t]) if node_times is None else np.asarray(node_times)
+    commands = np.empty((3, times.size))
+    for k, tk in enumerate(times):
+        decay = 1.0 if node_times is None else np.exp(-kp * (tk - t))
+        v = R @ reference.local(tk)[1] + carry + kp * decay * error
+        speed = np.linalg.norm(v)
+        commands[:, k] = v * (max_speed / speed) if speed > max_speed else v
+    return (commands[:, 0] if node_times is None else commands), p_ref

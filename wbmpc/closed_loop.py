@@ -17,6 +17,7 @@ from wbmpc.arm_task import ArmReference, heading_frame, velocity_command
 from wbmpc.low_level import LowLevelController
 from wbmpc.mpc import Commands, MPCSolution, WholeBodyMPC
 from wbmpc.plant import ContactPlant, fallen
+from wbmpc.time_grid import node_times
 
 
 @dataclass
@@ -33,6 +34,8 @@ class ClosedLoopConfig:
         base_yaw_rate: Commanded yaw rate [rad/s].
         arm_reference: End-effector position reference, or ``None`` for a constant velocity command.
         arm_kp: Position gain [1/s] of the arm reference feedback.
+        arm_preview: One end-effector velocity per MPC stage from the reference's future (True), or the
+            paper's single velocity held over the horizon (False).
         ee_velocity: Constant end-effector velocity command [m/s] used when there is no arm reference.
         ee_force: Commanded end-effector force [N], world.
         max_tilt: Roll/pitch [rad] beyond which the run counts as a fall.
@@ -48,6 +51,7 @@ class ClosedLoopConfig:
     base_yaw_rate: float = 0.0
     arm_reference: ArmReference | None = field(default_factory=ArmReference)
     arm_kp: float = 4.0
+    arm_preview: bool = True
     ee_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ee_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_tilt: float = 1.0
@@ -56,7 +60,10 @@ class ClosedLoopConfig:
         """Total plant steps, plant steps per MPC update and per low-level update."""
         per_mpc = round(1.0 / (self.mpc_rate * self.plant_dt))
         per_low = round(1.0 / (self.low_level_rate * self.plant_dt))
-        if abs(per_mpc * self.plant_dt * self.mpc_rate - 1) > 1e-9 or abs(per_low * self.plant_dt * self.low_level_rate - 1) > 1e-9:
+        if (
+            abs(per_mpc * self.plant_dt * self.mpc_rate - 1) > 1e-9
+            or abs(per_low * self.plant_dt * self.low_level_rate - 1) > 1e-9
+        ):
             raise ValueError(
                 f"plant_dt={self.plant_dt} s must divide the MPC period 1/{self.mpc_rate} s and the "
                 f"low-level period 1/{self.low_level_rate} s"
@@ -145,18 +152,29 @@ def run_closed_loop(
         q, v = state.q, state.v
         if step % per_mpc == 0:
             pin.framesForwardKinematics(model, data, q)
-            commands = Commands(base_linear_velocity=base_cmd, base_angular_velocity=np.array([0, 0, config.base_yaw_rate]),
-                                ee_force=np.asarray(config.ee_force, dtype=float))
+            commands = Commands(
+                base_linear_velocity=base_cmd,
+                base_angular_velocity=np.array([0, 0, config.base_yaw_rate]),
+                ee_force=np.asarray(config.ee_force, dtype=float),
+            )
             if ee_id is not None:
                 ee_pos = data.oMf[ee_id].translation.copy()
                 if arm_reference is not None:
                     R_heading, _ = heading_frame(q)
-                    ee_cmd, ee_ref = velocity_command(arm_reference, q, ee_pos, t, R_heading @ base_cmd,
-                                                      kp=config.arm_kp)
+                    stage_times = node_times(mpc.time_steps(), t)[:-1] if config.arm_preview else None
+                    ee_cmd, ee_ref = velocity_command(
+                        arm_reference,
+                        q,
+                        ee_pos,
+                        t,
+                        R_heading @ base_cmd,
+                        kp=config.arm_kp,
+                        node_times=stage_times,
+                    )
                 else:
                     ee_cmd = np.asarray(config.ee_velocity, dtype=float)
                 commands.ee_velocity = ee_cmd
-                log.ee_command.append(ee_cmd)
+                log.ee_command.append(ee_cmd if ee_cmd.ndim == 1 else ee_cmd[:, 0])
             plan = mpc.solve(q, v, t, commands)
             _log_solve(log, plan, keep_plans)
             low.update(plan)
@@ -177,7 +195,9 @@ def run_closed_loop(
             log.tau.append(tau.copy())
             log.tau_ff.append(low.reference(t).tau_ff)
             log.contact.append(mpc.config.gait.contact(t))
-            log.ee_position.append(data.oMf[ee_id].translation.copy() if ee_id is not None else np.full(3, np.nan))
+            log.ee_position.append(
+                data.oMf[ee_id].translation.copy() if ee_id is not None else np.full(3, np.nan)
+            )
             log.ee_reference.append(ee_ref.copy())
         try:
             state = plant.step(tau, mpc.config.gait.contact(t))
@@ -229,17 +249,26 @@ def machine_description() -> str:
         pass
     import os
 
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
+    system = f"{platform.system()} {platform.release()}"
+    return f"{cpu}, {os.cpu_count()} cores, {system}, Python {platform.python_version()}"
 
 
-def summarize(mpc: WholeBodyMPC, log: ClosedLoopLog, config: ClosedLoopConfig, fell: bool, torque_violations: int,
-              plant: ContactPlant | None = None) -> dict:
+def summarize(
+    mpc: WholeBodyMPC,
+    log: ClosedLoopLog,
+    config: ClosedLoopConfig,
+    fell: bool,
+    torque_violations: int,
+    plant: ContactPlant | None = None,
+) -> dict:
     """Key numbers of a run: solve-time statistics (in-process), convergence, tracking, safety."""
     arrays = log.arrays()
     solve_ms = 1e3 * arrays["solve_time"]
     warm = solve_ms[1:] if solve_ms.size > 1 else solve_ms
     iters = arrays["iterations"][1:] if arrays["iterations"].size > 1 else arrays["iterations"]
-    ee_err = np.linalg.norm(arrays["ee_position"] - arrays["ee_reference"], axis=1) if len(log.t) else np.array([])
+    ee_err = (
+        np.linalg.norm(arrays["ee_position"] - arrays["ee_reference"], axis=1) if len(log.t) else np.array([])
+    )
     ee_err = ee_err[np.isfinite(ee_err)]
     q = arrays["q"]
     summary = {

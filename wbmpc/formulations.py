@@ -97,7 +97,7 @@ class InverseDynamics:
     def dynamics_constraints(
         self, stage: StageVariables, data: cpin.SymbolicData, applied_forces: dict[str, ca.SX]
     ) -> ca.SX:
-        """RNEA path constraint: base rows = 0, joint rows = tau_j where the torques are variables (= 0 rows)."""
+        """RNEA path constraint: base rows = 0, and joint rows = tau_j where the torques are variables."""
         tau = cpin.rnea(self.smodel, stage.q, stage.v, stage.a, applied_forces, data=data)
         if stage.tau is None:
             return tau[:6]

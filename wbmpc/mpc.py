@@ -64,7 +64,8 @@ class Commands:
     Attributes:
         base_linear_velocity: Base linear velocity [m/s] in the heading frame (x forward, y left, z up).
         base_angular_velocity: Base angular velocity [rad/s] in the heading frame (yaw rate is z).
-        ee_velocity: Arm end-effector linear velocity [m/s], world axes.
+        ee_velocity: Arm end-effector linear velocity [m/s], world axes: (3,) held over the horizon (the
+            paper), or (3, N-1) one per stage (e.g. a reference trajectory's future velocities).
         ee_force: Force [N] the environment applies on the end effector, world axes (e.g. a pulled load
             pulls back: negative x when the robot pulls towards +x).
         base_height: Nominal base height [m]; ``None`` keeps the robot's nominal pose height.
@@ -80,7 +81,9 @@ class Commands:
         out = {}
         for name in ("base_linear_velocity", "base_angular_velocity", "ee_velocity", "ee_force"):
             value = np.asarray(getattr(self, name), dtype=float)
-            if value.shape != (3,):
+            if name == "ee_velocity" and value.ndim == 2 and value.shape[0] == 3:
+                pass  # one command per stage; the stage count is checked when the parameters are packed
+            elif value.shape != (3,):
                 raise ValueError(f"command {name} must have shape (3,), got {value.shape}")
             if not np.all(np.isfinite(value)):
                 raise ValueError(f"command {name} contains NaN or inf: {value}")
@@ -117,11 +120,23 @@ class MPCConfig:
     front_force_ratio: float | None = None
     solver: str = "fatrop"
     tol: float = 1e-3
-    max_iter: int = 20
+    max_iter: int = 30
     cold_max_iter: int = 200
     mu_init_warm: float = 1e-4
     mu_init_cold: float = 1e-1
     dual_warm_start: bool = True
+
+    def __post_init__(self):
+        for name in ("dt_min", "dt_max", "mu", "tol"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0:
+                raise ValueError(f"MPCConfig.{name} must be a positive number, got {value!r}")
+        if self.dt_max < self.dt_min:
+            raise ValueError(f"MPCConfig.dt_max ({self.dt_max}) must be >= dt_min ({self.dt_min})")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"unknown solver {self.solver!r}; available: {list(SOLVERS)}")
+        if not isinstance(self.gait, Gait):
+            raise ValueError(f"MPCConfig.gait must be a Gait (see wbmpc.gait.make_gait), got {self.gait!r}")
 
 
 @dataclass
@@ -204,10 +219,19 @@ class WholeBodyMPC:
                     "fatrop": inner,
                 }
             else:
-                ipopt = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init, "sb": "yes"}
+                ipopt = {
+                    "print_level": 0,
+                    "tol": cfg.tol,
+                    "max_iter": max_iter,
+                    "mu_init": mu_init,
+                    "sb": "yes",
+                }
                 if not cold:
-                    ipopt |= {"warm_start_init_point": "yes", "warm_start_bound_push": 1e-7,
-                              "warm_start_mult_bound_push": 1e-7}
+                    ipopt |= {
+                        "warm_start_init_point": "yes",
+                        "warm_start_bound_push": 1e-7,
+                        "warm_start_mult_bound_push": 1e-7,
+                    }
                 opts = {"expand": True, "print_time": False, "ipopt": ipopt}
             self._solvers[key] = ca.nlpsol(f"wbmpc_{cfg.solver}", cfg.solver, self.ocp.nlp, opts)
         return self._solvers[key]
@@ -237,7 +261,10 @@ class WholeBodyMPC:
             sample.contact,
             0.0,
             swing_vertical_velocity(
-                sample.swing_phase, cfg.gait.swing_duration or 1.0, cfg.swing.height, cfg.swing.v_liftoff,
+                sample.swing_phase,
+                cfg.gait.swing_duration or 1.0,
+                cfg.swing.height,
+                cfg.swing.v_liftoff,
                 cfg.swing.v_touchdown,
             ),
         )
@@ -261,14 +288,16 @@ class WholeBodyMPC:
             "contact": contact,
             "swing_vz": swing_vz,
             "force_des": force_des,
-            "ee_velocity": commands.ee_velocity,
+            "ee_velocity": np.broadcast_to(commands.ee_velocity.reshape(3, -1), (3, self.n_nodes - 1))
+            if commands.ee_velocity.ndim == 1
+            else commands.ee_velocity,
             "ee_force": commands.ee_force,
             "mu": cfg.mu,
             "Q": Q_default if cfg.Q is None else cfg.Q,
             "R": R_default if cfg.R is None else cfg.R,
         }
 
-    # --- initial guesses --------------------------------------------------------------------------------------
+    # --- initial guesses ---------------------------------------------------------------------------------
     def cold_guess(self, q_hat: np.ndarray, v_hat: np.ndarray, params: dict) -> np.ndarray:
         """A physically consistent start: hold the measured state, static forces and torques on every node."""
         N, nv = self.n_nodes, self.robot.nv
@@ -286,11 +315,15 @@ class WholeBodyMPC:
             taus.append(tau)
         n_tau = self.ocp.settings.n_tau_nodes
         return self.ocp.join(
-            np.zeros((N, nv)), np.tile(v_hat, (N, 1)), np.zeros((N - 1, nv)), np.array(forces), np.array(taus[:n_tau])
+            np.zeros((N, nv)),
+            np.tile(v_hat, (N, 1)),
+            np.zeros((N - 1, nv)),
+            np.array(forces),
+            np.array(taus[:n_tau]),
         )
 
     def shifted_guess(self, previous: MPCSolution, q_hat: np.ndarray, t: float, params: dict) -> np.ndarray:
-        """Previous plan interpolated on the new node times, re-expressed around ``q_hat``; forces re-initialised.
+        """Previous plan interpolated on the new node times around ``q_hat``, with forces re-initialised.
 
         Forces get the targets (weight over the stance feet, zero on swing feet, the commanded arm force)
         because the adaptive grid shifts contact switches between solves (paper, Sec. V-A).
@@ -317,8 +350,14 @@ class WholeBodyMPC:
         return self.ocp.join(dq, v, a, forces, tau)
 
     # --- solve ----------------------------------------------------------------------------------------------
-    def solve(self, q_hat: np.ndarray, v_hat: np.ndarray, t: float = 0.0, commands: Commands | None = None,
-              warm_start: bool = True) -> MPCSolution:
+    def solve(
+        self,
+        q_hat: np.ndarray,
+        v_hat: np.ndarray,
+        t: float = 0.0,
+        commands: Commands | None = None,
+        warm_start: bool = True,
+    ) -> MPCSolution:
         """Solve the OCP from the measured state.
 
         Args:
@@ -344,7 +383,11 @@ class WholeBodyMPC:
         cold = not (warm_start and self.previous is not None and not self.previous.fallback)
         if cold and warm_start and self.previous is not None:
             cold = False  # a fallback plan is still the best guess we have
-        x0 = self.cold_guess(q_hat, v_hat, params) if cold else self.shifted_guess(self.previous, q_hat, t, params)
+        x0 = (
+            self.cold_guess(q_hat, v_hat, params)
+            if cold
+            else self.shifted_guess(self.previous, q_hat, t, params)
+        )
         solver = self._solver(cold)
         args = {"x0": x0, "p": p, "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
         if not cold and self.config.dual_warm_start and self.previous.lam_g is not None:
@@ -365,12 +408,26 @@ class WholeBodyMPC:
         except RuntimeError as exc:  # the solver raised (e.g. NaN in an evaluation): counted, not fatal
             elapsed = time.perf_counter() - start
             self.stats["exceptions"] += 1
-            success, status, iterations, violation, w, lam_g = False, f"exception: {exc}", -1, np.inf, None, None
+            success, status, iterations, violation, w, lam_g = (
+                False,
+                f"exception: {exc}",
+                -1,
+                np.inf,
+                None,
+                None,
+            )
         if not success:
             self.stats["failures"] += 1
             if self.previous is not None:
-                fallback = replace(self.previous, fallback=True, success=False, status=status, iterations=iterations,
-                                   solve_time=elapsed, constraint_violation=violation)
+                fallback = replace(
+                    self.previous,
+                    fallback=True,
+                    success=False,
+                    status=status,
+                    iterations=iterations,
+                    solve_time=elapsed,
+                    constraint_violation=violation,
+                )
                 return fallback
             if w is None:
                 w = x0
@@ -378,16 +435,30 @@ class WholeBodyMPC:
         self.previous = solution
         return solution
 
-    def _solution(self, w, lam_g, q_hat, t, params, success, iterations, elapsed, status, violation) -> MPCSolution:
+    def _solution(
+        self, w, lam_g, q_hat, t, params, success, iterations, elapsed, status, violation
+    ) -> MPCSolution:
         parts = self.ocp.split(w)
         model = self.robot.model
         q = np.array([pin.integrate(model, q_hat, d) for d in parts["dq"]])
         forces = parts["forces"].copy()
         forces[:, : self.robot.n_feet] *= params["contact"].T[:, :, None]
         return MPCSolution(
-            t=t, dts=self.time_steps(), q=q, v=parts["v"], a=parts["a"], forces=forces, tau=parts["tau"],
-            contact=params["contact"] > 0.5, success=success, iterations=iterations, solve_time=elapsed,
-            status=status, constraint_violation=violation, w=w, lam_g=lam_g,
+            t=t,
+            dts=self.time_steps(),
+            q=q,
+            v=parts["v"],
+            a=parts["a"],
+            forces=forces,
+            tau=parts["tau"],
+            contact=params["contact"] > 0.5,
+            success=success,
+            iterations=iterations,
+            solve_time=elapsed,
+            status=status,
+            constraint_violation=violation,
+            w=w,
+            lam_g=lam_g,
         )
 
     def reset(self) -> None:

@@ -9,14 +9,16 @@ constraint rows are ordered for Fatrop's structure detection: first the gap-clos
 ``x_{k+1} - f(x_k, u_k, dt_k) = 0``, then the path constraints of stage ``k`` (functions of ``x_k, u_k``):
 
 * node 0: the initial state ``dq_0 = 0``, ``v_0 = v_hat``;
-* dynamics (RNEA): base rows ``= 0``, joint rows ``= tau_j`` on the first ``n_tau`` nodes, ``|tau_j| <= tau_max``;
+* dynamics (RNEA): base rows ``= 0``; joint rows ``= tau_j`` and ``|tau_j| <= tau_max`` on the first ``n_tau``
+  nodes;
 * each foot ``i`` with contact flag ``c`` (a parameter): the force acting on the robot is ``c F_i`` so a
   swing foot carries no force; friction cone ``F_z >= 0``, ``mu^2 F_z^2 >= F_x^2 + F_y^2`` (relaxed by
   ``(1 - c)`` so that swing rows stay inactive instead of degenerate); for ``k >= 1`` the foot velocity
   in world axes: ``c v_xy + (1 - c) F_xy / W = 0`` (stance: no slip; swing: the unused force is pinned to 0)
   and ``v_z = (1 - c) v_z^ref`` (stance: no lift-off; swing: the cubic-spline reference);
 * arm: end-effector force ``= F^cmd`` (world) at every node and, for ``k >= 1``, end-effector linear
-  velocity in world axes (``LOCAL_WORLD_ALIGNED``) ``= v^cmd`` (world);
+  velocity in world axes (``LOCAL_WORLD_ALIGNED``) ``= v^cmd_k`` (world; constant over the horizon as
+  in the paper, or one command per node, e.g. the future velocities of a reference trajectory);
 * joint position and velocity limits for ``k >= 1`` (node 0 is the measurement).
 
 Velocity rows are skipped at node 0 because ``v_0`` is fixed there: they would be constant rows that make
@@ -55,7 +57,9 @@ class OCPSettings:
         if not isinstance(self.n_nodes, int | np.integer) or self.n_nodes < 3:
             raise ValueError(f"n_nodes must be an integer >= 3, got {self.n_nodes!r}")
         if not 1 <= self.n_tau_nodes <= self.n_nodes - 1:
-            raise ValueError(f"n_tau_nodes must be in [1, n_nodes - 1 = {self.n_nodes - 1}], got {self.n_tau_nodes}")
+            raise ValueError(
+                f"n_tau_nodes must be in [1, n_nodes - 1 = {self.n_nodes - 1}], got {self.n_tau_nodes}"
+            )
 
 
 class ParameterLayout:
@@ -138,7 +142,9 @@ class OCP:
         self.settings = settings or OCPSettings()
         self.smodel = cpin.SymbolicModel(robot.model)
         if self.settings.formulation != "inverse_dynamics":
-            raise ValueError(f"unknown formulation {self.settings.formulation!r}; available: ['inverse_dynamics']")
+            raise ValueError(
+                f"unknown formulation {self.settings.formulation!r}; available: ['inverse_dynamics']"
+            )
         self.formulation = InverseDynamics(self.smodel, len(robot.contact_frames))
         self.n_feet = robot.n_feet
         self.nv, self.nq, self.nj = robot.nv, robot.nq, robot.nj
@@ -166,7 +172,7 @@ class OCP:
         P.add("contact", self.n_feet, n_stages)  # 1 stance, 0 swing, per stage
         P.add("swing_vz", self.n_feet, n_stages)  # vertical foot velocity reference [m/s]
         P.add("force_des", self.n_feet, n_stages)  # vertical force target per foot [N]
-        P.add("ee_velocity", 3)  # commanded end-effector linear velocity, world axes [m/s]
+        P.add("ee_velocity", 3, n_stages)  # commanded end-effector linear velocity per stage, world [m/s]
         P.add("ee_force", 3)  # commanded force on the robot at the end effector, world axes [N]
         P.add("mu", 1)  # friction coefficient
         P.add("Q", 2 * self.nv)
@@ -278,7 +284,7 @@ class OCP:
             if k >= 1:
                 if robot.has_arm and has_input:
                     ee_vel = cpin.frame_velocity(data, robot.ee_frame, cpin.LOCAL_WORLD_ALIGNED).linear
-                    add("ee_velocity", info, ee_vel - p["ee_velocity"], 0, 0)
+                    add("ee_velocity", info, ee_vel - p["ee_velocity"][:, k], 0, 0)
                 add("joint_position_limits", info, st.q[7:], lo_q, hi_q)
                 add("joint_velocity_limits", info, st.v[6:], -v_max, v_max)
             info.ng = sum(e.numel() for e in g_parts) - info.g_offset
@@ -298,8 +304,10 @@ class OCP:
         """Expected Fatrop stage sizes: ``nx``, ``nu`` and path-constraint rows ``ng`` per node."""
         nx = [s.nx for s in self.stages]
         nu = [s.nu for s in self.stages]
-        transition_rows = [s.rows["transition"].stop - s.rows["transition"].start if "transition" in s.rows else 0
-                           for s in self.stages]
+        transition_rows = [
+            s.rows["transition"].stop - s.rows["transition"].start if "transition" in s.rows else 0
+            for s in self.stages
+        ]
         ng = [s.ng - t for s, t in zip(self.stages, transition_rows, strict=True)]
         return {"nx": nx, "nu": nu, "ng": ng}
 

@@ -1,0 +1,159 @@
+"""The whole-body inverse-dynamics MPC: structure, convergence, physics of the solution, robustness."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop, tilt
+from wbmpc.gait import make_gait
+from wbmpc.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.ocp import OCPSettings
+from wbmpc.robot import load_b1_z1
+
+TOL = 1e-3  # the solver tolerance (paper)
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_b1_z1()
+
+
+@pytest.fixture(scope="module")
+def standing(robot):
+    """The paper-size problem (15 nodes), standing, solved once from a cold start."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand")))
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    return mpc, plan
+
+
+def test_decision_variables_match_the_paper(standing):
+    mpc, _ = standing
+    # Paper, Table I: 1226 decision variables for the inverse-dynamics MPC with 15 nodes and tau on 3 nodes.
+    assert mpc.ocp.n_variables == 1226
+
+
+def test_fatrop_detects_the_stage_structure(standing):
+    mpc, _ = standing
+    stats = mpc._solver(cold=True).stats()
+    expected = mpc.ocp.stage_sizes()
+    assert list(stats["nx"]) == expected["nx"] == [44] * 15
+    assert list(stats["nu"]) == expected["nu"] == [53] * 3 + [37] * 11 + [0]
+    assert list(stats["ng"]) == expected["ng"]
+
+
+def test_cold_start_converges_when_standing(standing):
+    _, plan = standing
+    assert plan.success, plan.status
+    assert plan.iterations <= 30
+    assert plan.constraint_violation < TOL
+
+
+def test_solution_satisfies_rnea_friction_and_torque_limits(robot, standing):
+    """Check the plan with numeric Pinocchio, independently of the symbolic model."""
+    mpc, plan = standing
+    model, data = robot.model, robot.model.createData()
+    mu = mpc.config.mu
+    for k in range(mpc.n_nodes - 1):
+        q, v, a, forces = plan.q[k], plan.v[k], plan.a[k], plan.forces[k]
+        pin.framesForwardKinematics(model, data, q)
+        pin.computeJointJacobians(model, data, q)
+        JtF = sum(
+            pin.getFrameJacobian(model, data, robot.frame_id(f), pin.LOCAL_WORLD_ALIGNED)[:3].T @ forces[i]
+            for i, f in enumerate(robot.contact_frames)
+        )
+        tau = pin.rnea(model, data, q, v, a) - JtF
+        assert np.abs(tau[:6]).max() < 1e-2, f"node {k}: base wrench residual {tau[:6]}"
+        if k < len(plan.tau):
+            np.testing.assert_allclose(tau[6:], plan.tau[k], atol=1e-2)
+        fz = forces[:4, 2]
+        assert np.all(fz >= -1e-6)
+        assert np.all(mu**2 * fz**2 - forces[:4, 0] ** 2 - forces[:4, 1] ** 2 >= -1e-3)
+    assert np.all(np.abs(plan.tau) <= robot.joint_torque_limits + 1e-6)
+    # Standing still: the feet carry the weight.
+    assert plan.forces[0, :4, 2].sum() == pytest.approx(robot.mass * robot.gravity, rel=0.02)
+
+
+def test_trot_plan_has_zero_force_on_swing_feet(robot):
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=8), MPCConfig(gait=make_gait("trot"), dt_max=0.06))
+    plan = mpc.solve(
+        robot.q_nominal,
+        np.zeros(robot.nv),
+        t=0.1,
+        commands=Commands(base_linear_velocity=np.array([0.2, 0.0, 0.0])),
+    )
+    assert plan.success, plan.status
+    swing = ~plan.contact.T
+    assert swing.any()
+    assert np.all(plan.forces[:, :4][swing] == 0.0)
+    stance_fz = plan.forces[:, :4, 2][~swing]
+    assert stance_fz.mean() > 100.0  # two feet carry ~300 N each
+
+
+def test_ipopt_agrees_with_fatrop(robot, standing):
+    _, fatrop_plan = standing
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand"), solver="ipopt"))
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    assert plan.success, plan.status
+    np.testing.assert_allclose(plan.forces[0], fatrop_plan.forces[0], atol=2.0)
+    np.testing.assert_allclose(plan.tau[0], fatrop_plan.tau[0], atol=1.0)
+
+
+def test_injected_solver_failure_is_survived(robot, monkeypatch):
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
+    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    assert first.success
+
+    def broken(cold):
+        def solve(**kwargs):
+            raise RuntimeError("injected failure")
+
+        return solve
+
+    monkeypatch.setattr(mpc, "_solver", broken)
+    second = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0125)
+    assert second.fallback and not second.success
+    assert "injected failure" in second.status
+    assert mpc.stats["failures"] == 1 and mpc.stats["exceptions"] == 1
+    np.testing.assert_array_equal(second.tau, first.tau)  # the controller keeps the previous plan
+
+
+def test_closed_loop_trot_stays_upright(robot):
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("trot")))
+    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.5), progress=False)
+    s = result.summary
+    assert not result.fell
+    assert s["max_tilt_rad"] < 0.2
+    assert s["converged_fraction"] >= 0.95
+    assert s["torque_violations"] == 0
+    assert s["ee_rms_m"] < 0.03
+    q = result.log.arrays()["q"]
+    assert q[:, 2].min() > 0.4  # base height stays near nominal (0.53 m)
+    assert max(tilt(qi) for qi in q) == pytest.approx(s["max_tilt_rad"])
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda r: make_gait("gallop"), "gallop"),
+        (lambda r: MPCConfig(dt_min=0.0), "dt_min"),
+        (lambda r: MPCConfig(dt_min=0.05, dt_max=0.01), "dt_max"),
+        (lambda r: MPCConfig(solver="snopt"), "snopt"),
+        (lambda r: Commands(ee_velocity=np.zeros(2)).validated(), "ee_velocity"),
+        (lambda r: Commands(ee_force=np.array([0.0, np.nan, 0.0])).validated(), "ee_force"),
+        (lambda r: OCPSettings(n_nodes=2), "n_nodes"),
+        (lambda r: OCPSettings(n_nodes=5, n_tau_nodes=5), "n_tau_nodes"),
+    ],
+)
+def test_bad_configuration_is_named(robot, make, message):
+    with pytest.raises(ValueError, match=message):
+        make(robot)
+
+
+def test_bad_state_is_named(robot, standing):
+    mpc, _ = standing
+    q = robot.q_nominal
+    q[7] = np.nan
+    with pytest.raises(ValueError, match="q_hat contains NaN"):
+        mpc.solve(q, np.zeros(robot.nv))
+    with pytest.raises(ValueError, match=r"v_hat must have shape \(22,\)"):
+        mpc.solve(robot.q_nominal, np.zeros(21))

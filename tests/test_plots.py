@@ -1,0 +1,151 @@
+"""Figures of closed-loop runs and plans, on small synthetic data (no MPC solve)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pinocchio as pin
+import pytest
+from matplotlib.figure import Figure
+
+from wbmpc.plots import (
+    base_rpy,
+    figure_dir,
+    heading_velocity,
+    plot_closed_loop,
+    plot_plan,
+    plot_torques,
+    repo_root,
+    save_figure,
+)
+from wbmpc.robot import load_b1_z1
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_b1_z1()
+
+
+@pytest.fixture(scope="module")
+def log(robot):
+    """A 0.4 s fake run: 500 Hz series, MPC records at 80 Hz, one failed solve."""
+    rng = np.random.default_rng(0)
+    t = np.arange(200) / 500.0
+    q = np.tile(robot.q_nominal, (t.size, 1))
+    q[:, 0] = 0.2 * t
+    q[:, 2] += 0.01 * np.sin(2 * np.pi * t)
+    for i, ti in enumerate(t):  # small pitch oscillation
+        q[i, 3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.0, 0.02 * np.sin(4 * ti), 0.0)).coeffs()
+    v = np.zeros((t.size, robot.nv))
+    v[:, 0] = 0.2
+    ee = np.column_stack([0.5 + 0.2 * t, np.zeros_like(t), 0.8 + 0.05 * np.sin(2 * t)])
+    ref = ee + 0.005
+    ref[0] = np.nan  # no reference before the first solve
+    solve_t = np.arange(0, t[-1], 1 / 80)
+    n = solve_t.size
+    return {
+        "t": t, "q": q, "v": v,
+        "tau": rng.normal(scale=20.0, size=(t.size, robot.nj)),
+        "tau_ff": rng.normal(scale=20.0, size=(t.size, robot.nj)),
+        "contact": np.column_stack([t < 0.2, t >= 0.2, t >= 0.2, t < 0.2]),
+        "ee_position": ee, "ee_reference": ref,
+        "solve_t": solve_t, "solve_time": 0.15 + 0.02 * rng.random(n),
+        "iterations": rng.integers(3, 8, n), "success": np.arange(n) != 5, "fallback": np.arange(n) == 5,
+    }
+
+
+@pytest.fixture(scope="module")
+def plan(robot):
+    """A fake 15-node plan: geometric steps 10 -> 100 ms, a trot switch at node 11."""
+    n_nodes = 15
+    dts = 0.01 * (10.0 ** (np.arange(n_nodes - 1) / (n_nodes - 2)))
+    q = np.tile(robot.q_nominal, (n_nodes, 1))
+    q[:, 0] = np.linspace(0.0, 0.1, n_nodes)
+    contact = np.zeros((4, n_nodes - 1), dtype=bool)
+    contact[[1, 2], :11] = True
+    contact[[0, 3], 11:] = True
+    forces = np.zeros((n_nodes - 1, 5, 3))
+    forces[:, :4, 2] = 300.0 * contact.T
+    return SimpleNamespace(t=0.5, dts=dts, node_times=0.5 + np.concatenate([[0.0], np.cumsum(dts)]), q=q,
+                           forces=forces, contact=contact, success=True, iterations=6, solve_time=0.17)
+
+
+def _check_labels(fig: Figure, n_axes: int) -> None:
+    assert isinstance(fig, Figure)
+    assert len(fig.axes) == n_axes
+    for ax in fig.axes:
+        assert ax.get_ylabel(), f"axis without a y label: {ax}"
+    assert any(ax.get_xlabel() for ax in fig.axes)
+
+
+def test_plot_closed_loop(robot, log):
+    fig = plot_closed_loop(log, robot, base_velocity_command=0.2, title="synthetic")
+    _check_labels(fig, 8)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert "base height [m]" in labels and "solve time [ms]" in labels and "iterations" in labels
+    # The command line is drawn on the velocity axis.
+    ax_v = fig.axes[labels.index("forward velocity [m/s]")]
+    assert any(np.allclose(line.get_ydata(), 0.2) for line in ax_v.get_lines())
+
+
+def test_plot_closed_loop_without_command(robot, log):
+    _check_labels(plot_closed_loop(log, robot), 8)
+
+
+def test_plot_torques(robot, log):
+    fig = plot_torques(log, robot)
+    _check_labels(fig, 3)
+    expected = ["RL_calf_joint [N m]", "RR_calf_joint [N m]", "joint2 [N m]"]
+    assert [ax.get_ylabel() for ax in fig.axes] == expected
+    # Both limits are drawn at +- the model's torque limit.
+    j = robot.joint_index_v("joint2") - 6
+    flat = [line.get_ydata() for line in fig.axes[2].get_lines() if len(set(line.get_ydata())) == 1]
+    levels = {float(y[0]) for y in flat}
+    assert {robot.joint_torque_limits[j], -robot.joint_torque_limits[j]} <= levels
+
+
+def test_plot_torques_custom_joints(robot, log):
+    _check_labels(plot_torques(log, robot, joints=("FL_hip_joint",)), 1)
+
+
+def test_plot_plan(robot, plan):
+    fig = plot_plan(plan, robot)
+    _check_labels(fig, 4)
+    assert fig.axes[-1].get_xlabel() == "time in the horizon [s]"
+    assert "15 nodes" in fig.axes[-1].get_title()
+
+
+def test_plots_leave_pyplot_alone(robot, log, plan):
+    before = plt.get_fignums()
+    plot_closed_loop(log, robot)
+    plot_torques(log, robot)
+    plot_plan(plan, robot)
+    assert plt.get_fignums() == before
+
+
+def test_save_figure(tmp_path, robot, plan):
+    path = save_figure(plot_plan(plan, robot), "plan", directory=tmp_path / "figs")
+    assert path == tmp_path / "figs" / "plan.png"
+    data = path.read_bytes()
+    assert len(data) > 1000 and data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert save_figure(Figure(), "empty.png", directory=tmp_path).name == "empty.png"
+
+
+def test_figure_dir_is_in_the_repo():
+    assert (repo_root() / "pyproject.toml").is_file()
+    assert figure_dir() == repo_root() / "data" / "output" / "figures"
+
+
+def test_base_rpy_and_heading_velocity(robot):
+    q = robot.q_nominal
+    q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.1, -0.2, np.pi / 2)).coeffs()
+    np.testing.assert_allclose(base_rpy(q[None])[0], [0.1, -0.2, np.pi / 2], atol=1e-12)
+    # Forward in the base frame, with roll and pitch: the heading-frame velocity is the level part.
+    v = np.zeros(robot.nv)
+    v[0] = 1.0
+    R = pin.rpy.rpyToMatrix(0.1, -0.2, np.pi / 2)
+    world = R @ v[:3]
+    expected = pin.rpy.rpyToMatrix(0.0, 0.0, np.pi / 2).T @ world
+    np.testing.assert_allclose(heading_velocity(q[None], v[None])[0], expected, atol=1e-12)

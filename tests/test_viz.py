@@ -1,0 +1,150 @@
+"""Meshcat visualisation: visual model consistency, mesh decimation, and a headless viewer round trip.
+
+The viewer tests start meshcat's zmq server in a subprocess (it needs no display or browser). They are
+skipped, with the reason, only if that server cannot start on the machine.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wbmpc import viz
+from wbmpc.robot import load_b1_z1
+from wbmpc.viz import Viewer, ViewerUnavailableError, simplify_mesh, vertex_normals, visual_model
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_b1_z1()
+
+
+@pytest.fixture(scope="module")
+def viewer(robot):
+    try:
+        v = Viewer(robot)
+    except ViewerUnavailableError as exc:
+        pytest.skip(f"meshcat's zmq server cannot start on this machine: {exc}")
+    yield v
+    v.close()
+
+
+@pytest.fixture(scope="module")
+def plan(robot):
+    """A fake 15-node plan (no solve): the base moves 10 cm, the end effector force is 20 N down."""
+    n_nodes = 15
+    dts = 0.01 * (10.0 ** (np.arange(n_nodes - 1) / (n_nodes - 2)))
+    q = np.tile(robot.q_nominal, (n_nodes, 1))
+    q[:, 0] = np.linspace(0.0, 0.1, n_nodes)
+    contact = np.zeros((4, n_nodes - 1), dtype=bool)
+    contact[[1, 2], :11] = True
+    contact[[0, 3], 11:] = True
+    forces = np.zeros((n_nodes - 1, 5, 3))
+    forces[:, :4, 2] = 300.0 * contact.T
+    forces[:, 4, 2] = -20.0
+    return SimpleNamespace(t=0.0, dts=dts, node_times=np.concatenate([[0.0], np.cumsum(dts)]), q=q,
+                           forces=forces, contact=contact)
+
+
+def _frame_placements(model, q, names):
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    return {name: data.oMf[model.getFrameId(name)].homogeneous.copy() for name in names}
+
+
+def test_visual_model_matches_robot_model(robot):
+    model, geometry = visual_model(robot)
+    assert model.nq == robot.model.nq and model.nv == robot.model.nv
+    assert list(model.names) == list(robot.model.names)
+    assert geometry.ngeoms > 0
+    assert any(g.meshPath.endswith(".dae") for g in geometry.geometryObjects)
+    frames = robot.contact_frames  # the four feet and the end effector
+    assert robot.ee_frame in frames
+    rng = np.random.default_rng(1)
+    q_random = pin.randomConfiguration(robot.model)
+    q_random[:3] = rng.uniform(-1, 1, 3)
+    for q in (robot.q_nominal, q_random):
+        expected = _frame_placements(robot.model, q, frames)
+        got = _frame_placements(model, q, frames)
+        for name in frames:
+            np.testing.assert_allclose(got[name], expected[name], atol=1e-12, err_msg=name)
+
+
+def test_visual_model_falls_back_to_primitives(robot, monkeypatch):
+    monkeypatch.setattr(viz, "_package_dirs", lambda: ("/nonexistent/mesh/dir",))
+    with pytest.warns(UserWarning, match="primitive shapes"):
+        model, geometry = visual_model(robot)
+    assert model.nq == robot.model.nq
+    assert geometry.ngeoms > 0
+    assert not any(g.meshPath.endswith(".dae") for g in geometry.geometryObjects)
+
+
+def test_simplify_mesh_keeps_the_shape():
+    # A unit square split into 2 * 50 * 50 triangles.
+    n = 51
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
+    vertices = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    v, f = simplify_mesh(vertices, faces, cell=0.1)
+    assert 0 < len(f) < len(faces) / 10
+    assert f.min() >= 0 and f.max() < len(v)
+    assert np.all((v >= -1e-12) & (v <= 1 + 1e-12))
+    assert v[:, 0].max() - v[:, 0].min() > 0.9  # still spans the square
+    normals = vertex_normals(v, f)
+    np.testing.assert_allclose(np.abs(normals[:, 2]), 1.0, atol=1e-12)
+
+
+def test_arrow_transform_points_along_the_vector():
+    origin, vector = np.array([0.1, 0.2, 0.3]), np.array([0.3, -0.1, 0.5])
+    T = viz._arrow_transform(origin, vector)
+    tip = T @ np.array([0.0, 1.0, 0.0, 1.0])  # the unit arrow's tip
+    np.testing.assert_allclose(tip[:3], origin + vector, atol=1e-12)
+
+
+def test_unreachable_server_raises_a_clear_error(robot):
+    with pytest.raises(ViewerUnavailableError, match="no meshcat server"):
+        Viewer(robot, zmq_url="tcp://127.0.0.1:9", timeout=0.5)
+
+
+def test_viewer_round_trip(viewer, robot, plan, tmp_path):
+    assert viewer.url.startswith("http")
+    q = robot.q_nominal
+    viewer.display(q)
+    forces = np.zeros((len(robot.contact_frames), 3))
+    forces[:4, 2] = robot.mass * robot.gravity / 4
+    forces[4] = [0.0, 0.0, -20.0]
+    viewer.draw_forces(q, forces, contact=np.array([True, False, True, True]))
+    assert {"forces/FL_foot", "forces/gripper_center"} <= viewer._arrows
+    line = np.column_stack([np.linspace(0, 1, 5), np.zeros(5), np.full(5, 0.1)])
+    viewer.draw_path("test_path", line, "#ff7f0e")
+    paths = viewer.show_plan(plan)
+    assert paths["feet"].shape == (15, 4, 3) and paths["ee"].shape == (15, 3)
+    np.testing.assert_allclose(paths["base"][:, 0], plan.q[:, 0])
+    anim = viewer.animation(plan.q, plan.node_times, forces=plan.forces, contact=plan.contact.T)
+    assert len(anim.clips) > len(viewer.geometry.geometryObjects)  # the bodies plus the force arrows
+    path = viewer.export_html(tmp_path / "out" / "replay.html")
+    assert path.is_file()
+    assert path.stat().st_size > 10_000
+    assert "meshcat" in path.read_text(encoding="utf-8").lower()
+
+
+def test_play_and_clear(viewer, robot):
+    qs = np.tile(robot.q_nominal, (3, 1))
+    qs[:, 2] += [0.0, 0.01, 0.02]
+    viewer.play(qs, dt=0.0)
+    viewer.clear("paths")
+    viewer.clear()
+    assert not viewer._arrows and not viewer._ghosts
+
+
+def test_animation_rejects_bad_times(viewer, robot):
+    qs = np.tile(robot.q_nominal, (3, 1))
+    with pytest.raises(ValueError, match="increasing"):
+        viewer.animation(qs, np.array([0.0, 0.2, 0.1]))
+    with pytest.raises(ValueError, match="must match"):
+        viewer.animation(qs, np.array([0.0, 0.1]))

@@ -1,0 +1,597 @@
+"""Meshcat visualisation: the robot, contact forces, predicted foot and end-effector paths, replays.
+
+:func:`visual_model` rebuilds the robot's visual geometry with the same locked joints as
+:attr:`wbmpc.robot.Robot.model`. :class:`Viewer` wraps Pinocchio's ``MeshcatVisualizer`` on a meshcat
+server that it starts itself (a zmq subprocess; it runs headless, a browser is only needed to look)::
+
+    viewer = Viewer(robot)
+    viewer.show_plan(plan)                          # robot at node 0, force arrows, predicted paths
+    viewer.animation(log["q"], log["t"])            # a replay, played by the browser
+    viewer.export_html("data/output/replay.html")   # self-contained file, opens without a server
+
+The B1 and Z1 meshes are large (about 100 MB of Collada files, a million triangles). By default the
+viewer sends each mesh decimated by vertex clustering on a 5 mm grid (about 15 % of the triangles) with
+vertex normals, which keeps the scene and the exported HTML at a few MB. ``mesh_resolution=None`` sends
+the original files.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+import warnings
+import xml.etree.ElementTree as ET
+from contextlib import redirect_stdout
+from functools import lru_cache
+from pathlib import Path
+
+import meshcat
+import meshcat.geometry as mg
+import numpy as np
+import pinocchio as pin
+import zmq
+from meshcat.animation import Animation
+from pinocchio.visualize import MeshcatVisualizer
+
+from wbmpc.plots import EE_COLOR, FOOT_COLORS
+from wbmpc.robot import Robot, RobotModelError, example_robot_data_dir
+
+FOOT_FORCE_COLOR = 0xD62728  # red
+ARM_FORCE_COLOR = 0x1F5FD0  # blue
+BASE_PATH_COLOR = 0x555555
+GHOST_COLOR = (0.55, 0.6, 0.7, 0.3)  # translucent grey-blue (RGBA)
+DEFAULT_MESH_RESOLUTION = 0.005  # [m] vertex-clustering cell of the decimated meshes
+GHOST_MESH_RESOLUTION = 0.012  # [m] the same for the translucent ghosts
+
+
+class ViewerUnavailableError(RuntimeError):
+    """Raised when no meshcat server can be started or reached."""
+
+
+# --- visual geometry -----------------------------------------------------------------------------------
+def visual_model(robot: Robot) -> tuple[pin.Model, pin.GeometryModel]:
+    """The robot's visual geometry on a kinematic model with the same locked joints as ``robot.model``.
+
+    The full model and its visual geometry are read from ``robot.urdf_path`` (mesh URIs
+    ``package://example-robot-data/...`` resolve against the example-robot-data share folder), then reduced
+    with the locked joints at their ``robot.locked_joints`` angles. Frames that ``robot.model`` has but the
+    URDF does not (the end-effector tool point) are copied over. If the meshes cannot be loaded, each mesh
+    is replaced by the link's primitive collision shapes and a warning is issued: the viewer still works.
+
+    Args:
+        robot: The robot.
+
+    Returns:
+        The reduced model (same joints, configuration layout and frame placements as ``robot.model``) and its
+        visual geometry model.
+
+    Raises:
+        RobotModelError: if the reduced model does not match ``robot.model`` (nq or joint names).
+    """
+    full, geom = _full_visual_model(str(robot.urdf_path), _package_dirs())
+    lock_ids = [full.getJointId(name) for name in robot.locked_joints]
+    if lock_ids:
+        q_ref = pin.neutral(full)
+        for name, angle in robot.locked_joints.items():
+            joint = full.joints[full.getJointId(name)]
+            if joint.nq == 1:
+                q_ref[joint.idx_q] = angle
+            elif joint.nq == 2:  # continuous joint: (cos, sin)
+                q_ref[joint.idx_q : joint.idx_q + 2] = np.cos(angle), np.sin(angle)
+        model, geoms = pin.buildReducedModel(full, [geom], lock_ids, q_ref)
+        geom = geoms[0]
+    else:
+        model, geom = full.copy(), geom.copy()
+    if model.nq != robot.model.nq or list(model.names) != list(robot.model.names):
+        raise RobotModelError(
+            f"visual model does not match robot.model: nq {model.nq} vs {robot.model.nq}, "
+            f"joints {list(model.names)} vs {list(robot.model.names)}"
+        )
+    for frame in robot.model.frames:
+        if model.existFrame(frame.name):
+            continue
+        parent_frame = robot.model.frames[frame.parentFrame].name
+        model.addFrame(
+            pin.Frame(
+                frame.name,
+                frame.parentJoint,  # same joint order (checked above)
+                model.getFrameId(parent_frame) if model.existFrame(parent_frame) else 0,
+                frame.placement,
+                frame.type,
+            )
+        )
+    model.name = robot.model.name
+    return model, geom
+
+
+def _package_dirs() -> tuple[str, ...]:
+    """Folders against which ``package://`` mesh URIs resolve."""
+    try:
+        robots = example_robot_data_dir()
+    except RobotModelError:
+        return ()
+    # URIs "package://example-robot-data/robots/..." need the share folder, "package://b1_description/..."
+    # the robots folder.
+    return (str(robots.parent.parent), str(robots))
+
+
+@lru_cache(maxsize=4)
+def _full_visual_model(urdf: str, package_dirs: tuple[str, ...]) -> tuple[pin.Model, pin.GeometryModel]:
+    """Full model and visual geometry of a URDF (cached: loading the B1 + Z1 meshes takes seconds)."""
+    full = pin.buildModelFromUrdf(urdf, pin.JointModelFreeFlyer())
+    try:
+        loader = _mesh_loader()
+        kwargs = {"package_dirs": list(package_dirs)} | ({"mesh_loader": loader} if loader else {})
+        geom = pin.buildGeomFromUrdf(full, urdf, pin.GeometryType.VISUAL, **kwargs)
+    except (ValueError, RuntimeError, OSError) as exc:
+        warnings.warn(
+            f"could not load the visual meshes of {urdf} ({exc}); showing primitive shapes instead",
+            stacklevel=3,
+        )
+        geom = pin.buildGeomFromUrdfString(full, _urdf_without_meshes(urdf), pin.GeometryType.VISUAL)
+    return full, geom
+
+
+def _mesh_loader():
+    """A caching mesh loader with cheap (OBB) bounding volumes, or ``None`` for Pinocchio's default."""
+    try:
+        import coal
+
+        return coal.CachedMeshLoader(coal.NODE_TYPE.BV_OBB)
+    except (ImportError, AttributeError, TypeError):
+        return None
+
+
+def _urdf_without_meshes(urdf: str) -> str:
+    """URDF text where every mesh visual is replaced by the link's primitive collision shapes."""
+    root = ET.parse(urdf).getroot()
+    for link in root.iter("link"):
+        elements = link.findall("visual") + link.findall("collision")
+        meshes = [e for e in elements if e.find("geometry/mesh") is not None]
+        for element in meshes:
+            link.remove(element)
+        if any(e.tag == "visual" for e in meshes):
+            for collision in link.findall("collision"):
+                stand_in = ET.fromstring(ET.tostring(collision))
+                stand_in.tag = "visual"
+                link.append(stand_in)
+    return ET.tostring(root, encoding="unicode")
+
+
+# --- decimated meshes ----------------------------------------------------------------------------------
+def simplify_mesh(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Decimate a triangle mesh by vertex clustering: one vertex per occupied cubic cell.
+
+    Vertices in the same ``cell``-sized grid cell merge into their mean; triangles that collapse (two
+    corners in one cell) and duplicates are dropped. The shape is kept to about ``cell``.
+
+    Args:
+        vertices: (n, 3) vertex positions [m].
+        faces: (m, 3) vertex indices of the triangles.
+        cell: Grid cell size [m].
+
+    Returns:
+        The decimated vertices (n', 3) and faces (m', 3).
+    """
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(vertices) == 0 or len(faces) == 0:
+        return vertices.reshape(-1, 3), faces.reshape(-1, 3)
+    _, cluster = np.unique(np.floor(vertices / cell).astype(np.int64), axis=0, return_inverse=True)
+    cluster = cluster.ravel()
+    counts = np.bincount(cluster)
+    merged = np.zeros((counts.size, 3))
+    np.add.at(merged, cluster, vertices)
+    merged /= counts[:, None]
+    f = cluster[faces]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    f = f[np.sort(first)]
+    used = np.unique(f)
+    remap = np.full(counts.size, -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    return merged[used], remap[f]
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals (n, 3): the area-weighted sum of the adjacent face normals."""
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces, dtype=np.int64)
+    face_normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # |n| = 2 x area
+    normals = np.zeros_like(v)
+    for corner in range(3):
+        np.add.at(normals, f[:, corner], face_normals)
+    norm = np.linalg.norm(normals, axis=1, keepdims=True)
+    return normals / np.where(norm > 0, norm, 1.0)
+
+
+class _IndexedMeshGeometry(mg.Geometry):
+    """A triangle mesh with vertex normals (meshcat's TriangularMeshGeometry sends none)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray):
+        super().__init__()
+        self.vertices = np.asarray(vertices, dtype=np.float32)
+        self.faces = np.asarray(faces, dtype=np.uint32)
+        self.normals = np.asarray(normals, dtype=np.float32)
+
+    def lower(self, object_data):
+        return {
+            "uuid": self.uuid,
+            "type": "BufferGeometry",
+            "data": {
+                "attributes": {
+                    "position": mg.pack_numpy_array(self.vertices.T),
+                    "normal": mg.pack_numpy_array(self.normals.T),
+                },
+                "index": mg.pack_numpy_array(self.faces.T),
+            },
+        }
+
+
+_MESH_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _decimated_mesh(geometry_object: pin.GeometryObject, cell: float):
+    """Decimated (vertices, faces, normals) of a mesh geometry object, or ``None`` if it is not a mesh."""
+    geometry = geometry_object.geometry
+    if not (hasattr(geometry, "vertices") and hasattr(geometry, "tri_indices")):
+        return None
+    scale = np.asarray(geometry_object.meshScale, dtype=float)
+    key = (geometry_object.meshPath, tuple(scale), cell)
+    if key not in _MESH_CACHE:
+        tri = geometry.tri_indices
+        faces = np.array([(t[0], t[1], t[2]) for t in map(tri, range(geometry.num_tris))], dtype=np.int64)
+        # The loader applied meshScale to the vertices; Pinocchio applies it again in the transforms.
+        vertices = np.asarray(geometry.vertices(), dtype=float) / np.where(scale != 0, scale, 1.0)
+        vertices, faces = simplify_mesh(vertices, faces, cell)
+        _MESH_CACHE[key] = (vertices, faces, vertex_normals(vertices, faces))
+    return _MESH_CACHE[key]
+
+
+class _RobotVisualizer(MeshcatVisualizer):
+    """Pinocchio's meshcat visualizer, sending decimated meshes when a resolution is given."""
+
+    def __init__(self, model, geometry, mesh_resolution: float | None):
+        super().__init__(model, None, geometry)
+        self.mesh_resolution = mesh_resolution
+
+    def loadViewerGeometryObject(self, geometry_object, geometry_type, color=None):
+        mesh = _decimated_mesh(geometry_object, self.mesh_resolution) if self.mesh_resolution else None
+        if mesh is None:
+            return super().loadViewerGeometryObject(geometry_object, geometry_type, color)
+        rgba = np.asarray(geometry_object.meshColor if color is None else color, dtype=float)
+        material = mg.MeshPhongMaterial(color=_rgb_int(rgba[:3]), opacity=float(rgba[3]))
+        node = self.viewer[self.getViewerNodeName(geometry_object, geometry_type)]
+        node.set_object(mg.Mesh(_IndexedMeshGeometry(*mesh), material))
+
+
+# --- the viewer ------------------------------------------------------------------------------------------
+class Viewer:
+    """A meshcat scene of the robot, its contact forces and MPC plans.
+
+    Args:
+        robot: The robot.
+        zmq_url: Address of a running ``meshcat-server`` (e.g. ``tcp://127.0.0.1:6000``); ``None`` starts
+            a private server in a subprocess (stopped by :meth:`close` or at interpreter exit).
+        mesh_resolution: Cell size [m] of the decimated meshes; ``None`` sends the original mesh files.
+        timeout: Time [s] to wait for an existing server given by ``zmq_url`` to answer.
+
+    Raises:
+        ViewerUnavailableError: the meshcat server cannot be started or reached.
+    """
+
+    def __init__(self, robot: Robot, zmq_url: str | None = None,
+                 mesh_resolution: float | None = DEFAULT_MESH_RESOLUTION, timeout: float = 10.0):
+        self.robot = robot
+        self.model, self.geometry = visual_model(robot)
+        self.data = self.model.createData()
+        self.mesh_resolution = mesh_resolution
+        self.meshcat = _start_meshcat(zmq_url, timeout)
+        self._owns_server = zmq_url is None
+        self.viz = self._load_robot("robot")
+        self._ghosts: dict[int, _RobotVisualizer] = {}
+        self._arrows: set[str] = set()
+        self.set_camera()
+        self.display(robot.q_nominal)
+
+    def _load_robot(self, root: str, color=None, resolution: float | None = None) -> _RobotVisualizer:
+        viz = _RobotVisualizer(self.model, self.geometry, resolution or self.mesh_resolution)
+        viz.initViewer(viewer=self.meshcat)
+        viz.loadViewerModel(rootNodeName=root, visual_color=color)
+        return viz
+
+    # --- basics ------------------------------------------------------------------------------------------
+    @property
+    def url(self) -> str:
+        """Web address of the scene (open it in a browser)."""
+        return self.meshcat.url()
+
+    def jupyter_cell(self, height: int = 400):
+        """An IFrame of the live scene for a notebook cell (make it the cell's last expression)."""
+        return self.meshcat.jupyter_cell(height=height)
+
+    def set_camera(self, position=(1.3, -1.6, 0.9)) -> None:
+        """Place the camera at ``position`` [m] (world axes, z up), looking at the world origin."""
+        x, y, z = (float(c) for c in position)
+        # The camera object lives in meshcat's y-up frame: world (x, y, z) is (x, z, -y) there.
+        self.meshcat["/Cameras/default/rotated/<object>"].set_property("position", [x, z, -y])
+
+    def display(self, q: np.ndarray) -> None:
+        """Place the robot at configuration ``q`` (nq,)."""
+        q = np.asarray(q, dtype=float)
+        self.viz.display(q)
+        pin.framesForwardKinematics(self.model, self.data, q)
+
+    def play(self, qs: np.ndarray, dt: float) -> None:
+        """Show configurations ``qs`` (n, nq) one after the other, ``dt`` [s] apart (blocks meanwhile)."""
+        for q in qs:
+            start = time.perf_counter()
+            self.display(q)
+            time.sleep(max(0.0, dt - (time.perf_counter() - start)))
+
+    def clear(self, name: str | None = None) -> None:
+        """Delete drawn overlays: one node (``"plan"``, ``"forces"``, ``"paths/ee"``...) or all of them."""
+        names = [name] if name is not None else ["forces", "paths", "plan", "ghosts"]
+        for node in names:
+            self.meshcat[node].delete()
+        self._arrows = {a for a in self._arrows if not any(a == n or a.startswith(n + "/") for n in names)}
+        if name is None or name == "ghosts":
+            self._ghosts.clear()
+
+    def close(self) -> None:
+        """Stop the meshcat server this viewer started (a no-op for an external server)."""
+        window = self.meshcat.window
+        window.zmq_socket.close(linger=0)
+        proc = getattr(window, "server_proc", None)
+        if self._owns_server and proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+    def __enter__(self) -> Viewer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- overlays ----------------------------------------------------------------------------------------
+    def contact_positions(self, q: np.ndarray) -> np.ndarray:
+        """World positions [m] of the contact frames (feet, then the end effector), (n_c, 3)."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        frames = self.robot.contact_frames
+        return np.array([self.data.oMf[self.model.getFrameId(f)].translation for f in frames])
+
+    def draw_forces(self, q: np.ndarray, forces: np.ndarray, contact: np.ndarray | None = None,
+                    foot_scale: float = 1e-3, arm_scale: float = 2e-3, name: str = "forces") -> None:
+        """Arrows for the contact forces acting on the robot at the contact frames.
+
+        Args:
+            q: Configuration (nq,) that places the contact frames.
+            forces: Forces [N], world axes, one row per contact frame (feet, then the end effector).
+            contact: Contact flags of the feet; a swing foot gets no arrow. ``None``: all in contact.
+            foot_scale: Arrow length per newton [m/N] for the feet (red).
+            arm_scale: Arrow length per newton [m/N] for the end effector (blue).
+            name: Scene node holding the arrows.
+        """
+        forces = np.asarray(forces, dtype=float).reshape(-1, 3)
+        positions = self.contact_positions(q)
+        for i, force in enumerate(forces[: len(positions)]):
+            foot = i < self.robot.n_feet
+            if foot and contact is not None and not bool(np.asarray(contact)[i]):
+                force = np.zeros(3)
+            path = f"{name}/{self.robot.contact_frames[i]}"
+            self._ensure_arrow(path, FOOT_FORCE_COLOR if foot else ARM_FORCE_COLOR)
+            scale = foot_scale if foot else arm_scale
+            self.meshcat[path].set_transform(_arrow_transform(positions[i], scale * force))
+
+    def draw_path(self, name: str, points: np.ndarray, color: int | str = 0x1F77B4, markers: bool = True,
+                  marker_size: float = 0.012) -> None:
+        """A polyline through ``points`` (n, 3) [m], with a dot at every point if ``markers``.
+
+        The node is ``paths/<name>`` unless ``name`` already contains a ``/``.
+        """
+        points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+        color = _color_int(color)
+        node = self.meshcat[name if "/" in name else f"paths/{name}"]
+        node["line"].set_object(mg.Line(mg.PointsGeometry(points.T), mg.LineBasicMaterial(color=color)))
+        if markers:
+            rgb = np.array([(color >> 16) & 255, (color >> 8) & 255, color & 255], dtype=np.float32) / 255
+            colors = np.tile(rgb[:, None], (1, len(points)))
+            node["nodes"].set_object(
+                mg.Points(mg.PointsGeometry(points.T, color=colors), mg.PointsMaterial(size=marker_size))
+            )
+
+    def show_plan(self, plan, ghost_nodes=(-1,), foot_scale: float = 1e-3, arm_scale: float = 2e-3) -> dict:
+        """Show an MPC plan: the robot at node 0 with its force arrows, the predicted foot, end-effector and
+        base paths (a dot per node) and translucent ghosts of the robot at ``ghost_nodes``.
+
+        Args:
+            plan: A :class:`wbmpc.mpc.MPCSolution`.
+            ghost_nodes: Node indices shown as translucent robots (each costs one more copy of the meshes).
+            foot_scale, arm_scale: Arrow lengths per newton [m/N].
+
+        Returns:
+            The predicted positions [m]: ``feet`` (N, n_feet, 3), ``ee`` (N, 3) or ``None``, ``base`` (N, 3).
+        """
+        q_nodes = np.asarray(plan.q)
+        paths = self.predicted_paths(q_nodes)
+        self.display(q_nodes[0])
+        for i, foot in enumerate(self.robot.foot_frames):
+            self.draw_path(f"plan/{foot}", paths["feet"][:, i], FOOT_COLORS[i % len(FOOT_COLORS)])
+        if paths["ee"] is not None:
+            self.draw_path("plan/ee", paths["ee"], EE_COLOR)
+        self.draw_path("plan/base", paths["base"], BASE_PATH_COLOR)
+        contact = np.asarray(plan.contact)[:, 0] if np.size(plan.contact) else None
+        self.draw_forces(q_nodes[0], np.asarray(plan.forces)[0], contact, foot_scale, arm_scale)
+        for k in ghost_nodes:
+            k = int(k) % len(q_nodes)
+            if k not in self._ghosts:
+                # Translucent ghosts need little detail: coarser meshes keep the scene light.
+                coarse = max(self.mesh_resolution, GHOST_MESH_RESOLUTION) if self.mesh_resolution else None
+                self._ghosts[k] = self._load_robot(f"ghosts/node{k}", list(GHOST_COLOR), coarse)
+            self._ghosts[k].display(q_nodes[k])
+        return paths
+
+    def predicted_paths(self, qs: np.ndarray) -> dict:
+        """World positions [m] of the feet (n, n_feet, 3), end effector (n, 3) or ``None``, base (n, 3)."""
+        ids = [self.model.getFrameId(f) for f in self.robot.foot_frames]
+        ee = self.model.getFrameId(self.robot.ee_frame) if self.robot.has_arm else None
+        feet, ee_path = [], []
+        for q in np.asarray(qs, dtype=float):
+            pin.framesForwardKinematics(self.model, self.data, q)
+            feet.append([self.data.oMf[i].translation.copy() for i in ids])
+            if ee is not None:
+                ee_path.append(self.data.oMf[ee].translation.copy())
+        return {"feet": np.array(feet), "ee": np.array(ee_path) if ee is not None else None,
+                "base": np.asarray(qs)[:, :3].copy()}
+
+    # --- replays -----------------------------------------------------------------------------------------
+    def animation(self, qs: np.ndarray, times: np.ndarray, forces: np.ndarray | None = None,
+                  contact: np.ndarray | None = None, fps: float = 30.0, play: bool = True,
+                  repetitions: int = 1, foot_scale: float = 1e-3, arm_scale: float = 2e-3) -> Animation:
+        """Send a replay to the scene (the browser plays it; :meth:`export_html` keeps it).
+
+        Configurations are interpolated on the Lie group at ``fps`` frames per second of simulated time.
+
+        Args:
+            qs: Configurations (n, nq).
+            times: Their times [s] (n,), increasing.
+            forces: Contact forces [N], world, (n, n_c, 3) or per interval (n-1, n_c, 3) (held piecewise
+                constant, like MPC stage forces); ``None`` draws no arrows.
+            contact: Foot contact flags (n or n-1, n_feet); ``None``: arrows wherever the force is nonzero.
+            fps: Frames per second of the replay (real-time playback).
+            play: Start playing at once.
+            repetitions: Number of times the replay plays.
+            foot_scale, arm_scale: Arrow lengths per newton [m/N].
+
+        Returns:
+            The meshcat animation (already sent).
+        """
+        qs = np.asarray(qs, dtype=float)
+        times = np.asarray(times, dtype=float)
+        if qs.ndim != 2 or len(qs) != len(times) or len(qs) < 1:
+            raise ValueError(f"qs (n, nq) and times (n,) must match, got {qs.shape} and {times.shape}")
+        if len(times) > 1 and np.any(np.diff(times) <= 0):
+            raise ValueError("times must be strictly increasing")
+        frame_times = times[0] + np.arange(int(np.floor((times[-1] - times[0]) * fps + 1e-9)) + 1) / fps
+        anim = Animation(default_framerate=fps)
+        geometry_data = self.viz.visual_data
+        visual = pin.GeometryType.VISUAL
+        nodes = [self.viz.getViewerNodeName(g, visual) for g in self.geometry.geometryObjects]
+        for frame, t in enumerate(frame_times):
+            k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1))
+            if k + 1 < len(times):
+                alpha = (t - times[k]) / (times[k + 1] - times[k])
+                q = pin.interpolate(self.model, qs[k], qs[k + 1], alpha)
+            else:
+                q = qs[k]
+            pin.forwardKinematics(self.model, self.viz.data, q)
+            pin.updateGeometryPlacements(self.model, self.viz.data, self.geometry, geometry_data)
+            with anim.at_frame(self.meshcat, frame) as f:
+                for node, placement in zip(nodes, geometry_data.oMg, strict=True):
+                    f[node].set_transform(placement.homogeneous)
+                if forces is not None:
+                    c = None if contact is None else np.asarray(contact)[min(k, len(contact) - 1)]
+                    f_k = np.asarray(forces)[min(k, len(forces) - 1)]
+                    self._animate_forces(f, q, f_k, c, foot_scale, arm_scale)
+        self.meshcat.set_animation(anim, play=play, repetitions=repetitions)
+        return anim
+
+    def _animate_forces(self, frame, q, forces, contact, foot_scale, arm_scale) -> None:
+        positions = self.contact_positions(q)
+        for i, force in enumerate(np.asarray(forces, dtype=float).reshape(-1, 3)[: len(positions)]):
+            foot = i < self.robot.n_feet
+            if foot and contact is not None and not bool(contact[i]):
+                force = np.zeros(3)
+            path = f"forces/{self.robot.contact_frames[i]}"
+            self._ensure_arrow(path, FOOT_FORCE_COLOR if foot else ARM_FORCE_COLOR)
+            R, length = _arrow_pose((foot_scale if foot else arm_scale) * force)
+            # Animation tracks carry position and rotation; the arrow length is a scale track.
+            frame[path].set_transform(pin.SE3(R, positions[i]).homogeneous)
+            frame[path].set_property("scale", "vector3", [1.0, length, 1.0])
+
+    def export_html(self, path: str | Path) -> Path:
+        """Write the current scene (with its animation, if any) as a self-contained HTML file.
+
+        The file embeds the meshcat viewer and every object, so it opens in a browser without a server.
+
+        Returns:
+            The path written.
+        """
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(self.meshcat.static_html(), encoding="utf-8")
+        return path
+
+    # --- helpers -----------------------------------------------------------------------------------------
+    def _ensure_arrow(self, path: str, color: int) -> None:
+        """Create an arrow of unit length along its local y axis (shaft + cone head), once."""
+        if path in self._arrows:
+            return
+        node = self.meshcat[path]
+        material = mg.MeshLambertMaterial(color=color)
+        head = 0.15  # head length as a fraction of the arrow
+        node["shaft"].set_object(mg.Cylinder(1.0 - head, radius=0.008), material)
+        node["shaft"].set_transform(pin.SE3(np.eye(3), np.array([0.0, (1.0 - head) / 2, 0.0])).homogeneous)
+        node["head"].set_object(mg.Cylinder(head, radiusTop=0.0, radiusBottom=0.02), material)
+        node["head"].set_transform(pin.SE3(np.eye(3), np.array([0.0, 1.0 - head / 2, 0.0])).homogeneous)
+        self._arrows.add(path)
+
+
+def _arrow_pose(vector: np.ndarray, min_length: float = 1e-4) -> tuple[np.ndarray, float]:
+    """Rotation taking the y axis to ``vector`` and the arrow length [m] (at least ``min_length``)."""
+    length = float(np.linalg.norm(vector))
+    direction = vector / length if length > 1e-9 else np.array([0.0, 0.0, 1.0])
+    R = pin.Quaternion.FromTwoVectors(np.array([0.0, 1.0, 0.0]), direction).toRotationMatrix()
+    return R, max(length, min_length)
+
+
+def _arrow_transform(origin: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """Homogeneous transform taking the unit y-axis arrow to ``origin -> origin + vector`` (scaled in y)."""
+    R, length = _arrow_pose(np.asarray(vector, dtype=float))
+    T = np.eye(4)
+    T[:3, :3] = R @ np.diag([1.0, length, 1.0])
+    T[:3, 3] = origin
+    return T
+
+
+def _start_meshcat(zmq_url: str | None, timeout: float) -> meshcat.Visualizer:
+    """A meshcat client on a new server subprocess (``zmq_url=None``) or on a running server."""
+    if zmq_url is not None:
+        _probe_server(zmq_url, timeout)
+    try:
+        with redirect_stdout(io.StringIO()):  # meshcat prints the URL; Viewer.url has it
+            return meshcat.Visualizer(zmq_url=zmq_url)
+    except (RuntimeError, OSError, zmq.ZMQError) as exc:
+        raise ViewerUnavailableError(
+            f"could not start meshcat's zmq server ({exc}). Start one in a terminal with `meshcat-server` "
+            "and pass its zmq address, e.g. Viewer(robot, zmq_url='tcp://127.0.0.1:6000')"
+        ) from exc
+
+
+def _probe_server(zmq_url: str, timeout: float) -> None:
+    """Raise :class:`ViewerUnavailableError` unless a meshcat server answers at ``zmq_url``."""
+    socket = zmq.Context.instance().socket(zmq.REQ)
+    socket.setsockopt(zmq.LINGER, 0)
+    socket.setsockopt(zmq.RCVTIMEO, int(1000 * timeout))
+    try:
+        socket.connect(zmq_url)
+        socket.send(b"url")
+        socket.recv()
+    except zmq.ZMQError as exc:
+        raise ViewerUnavailableError(
+            f"no meshcat server answered at {zmq_url} within {timeout} s ({exc})"
+        ) from exc
+    finally:
+        socket.close()
+
+
+def _rgb_int(rgb) -> int:
+    r, g, b = (int(round(255 * float(np.clip(c, 0.0, 1.0)))) for c in rgb[:3])
+    return (r << 16) + (g << 8) + b
+
+
+def _color_int(color: int | str) -> int:
+    """``0xRRGGBB`` from an int or a ``"#rrggbb"`` string."""
+    if isinstance(color, str):
+        return int(color.lstrip("#"), 16)
+    return int(color)
