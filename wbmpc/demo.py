@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     np.savez_compressed(out / "log.npz", **result.log.arrays())
-    _figures(result, robot, out)
+    _figures(result, robot, out, args.speed)
     if not args.no_replay:
         _replay(result, robot, out)
     if args.save_results:
@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> dict:
     return summary
 
 
-def _figures(result, robot, out: Path) -> None:
+def _figures(result, robot, out: Path, speed: float) -> None:
     try:
         import matplotlib
 
@@ -132,7 +132,7 @@ def _figures(result, robot, out: Path) -> None:
         return
     arrays = result.log.arrays()
     for name, fig in (
-        ("closed_loop", plots.plot_closed_loop(arrays, robot)),
+        ("closed_loop", plots.plot_closed_loop(arrays, robot, base_velocity_command=speed)),
         ("torques", plots.plot_torques(arrays, robot)),
     ):
         fig.savefig(out / f"{name}.png", dpi=120)

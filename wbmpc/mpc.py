@@ -380,9 +380,8 @@ class WholeBodyMPC:
         commands = (commands or Commands()).validated()
         params = self.parameters(q_hat, v_hat, t, commands)
         p = self.ocp.params.pack(params)
-        cold = not (warm_start and self.previous is not None and not self.previous.fallback)
-        if cold and warm_start and self.previous is not None:
-            cold = False  # a fallback plan is still the best guess we have
+        # self.previous is always the last converged plan (fallbacks are not stored).
+        cold = not warm_start or self.previous is None
         x0 = (
             self.cold_guess(q_hat, v_hat, params)
             if cold
