@@ -108,6 +108,9 @@ class MPCConfig:
         cold_max_iter: Iteration cap of the first (cold) solve.
         mu_init_warm, mu_init_cold: Initial barrier parameter for warm and cold starts.
         dual_warm_start: Pass the previous constraint multipliers as the initial dual guess.
+        compiled: Solve with the generated and compiled NLP functions (Fatrop only; built once and
+            cached, see :mod:`wbmpc.codegen`); structural like ``solver``.
+        compile_flags: gcc flags of the compiled library.
     """
 
     gait: Gait = field(default_factory=lambda: make_gait("trot", 0.8))
@@ -125,6 +128,8 @@ class MPCConfig:
     mu_init_warm: float = 1e-4
     mu_init_cold: float = 1e-1
     dual_warm_start: bool = True
+    compiled: bool = False
+    compile_flags: tuple[str, ...] = ("-O1",)
 
     def __post_init__(self):
         for name in ("dt_min", "dt_max", "mu", "tol"):
@@ -135,6 +140,10 @@ class MPCConfig:
             raise ValueError(f"MPCConfig.dt_max ({self.dt_max}) must be >= dt_min ({self.dt_min})")
         if self.solver not in SOLVERS:
             raise ValueError(f"unknown solver {self.solver!r}; available: {list(SOLVERS)}")
+        if self.compiled and self.solver != "fatrop":
+            raise ValueError(
+                "MPCConfig.compiled needs solver='fatrop' (the library holds Fatrop's functions)"
+            )
         if not isinstance(self.gait, Gait):
             raise ValueError(f"MPCConfig.gait must be a Gait (see wbmpc.gait.make_gait), got {self.gait!r}")
 
@@ -198,6 +207,8 @@ class WholeBodyMPC:
         self.previous: MPCSolution | None = None
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0}
         self._data = robot.model.createData()
+        self.compiled_nlp = None
+        self.verbose = True
 
     # --- solver construction --------------------------------------------------------------------------------
     def _solver(self, cold: bool) -> ca.Function:
@@ -233,7 +244,18 @@ class WholeBodyMPC:
                         "warm_start_mult_bound_push": 1e-7,
                     }
                 opts = {"expand": True, "print_time": False, "ipopt": ipopt}
-            self._solvers[key] = ca.nlpsol(f"wbmpc_{cfg.solver}", cfg.solver, self.ocp.nlp, opts)
+            if cfg.compiled:
+                from wbmpc import codegen
+
+                if self.compiled_nlp is None:
+                    self.compiled_nlp = codegen.build(
+                        self.ocp, tuple(cfg.compile_flags), progress=self.verbose
+                    )
+                opts.pop("expand")
+                problem = str(self.compiled_nlp.library)
+            else:
+                problem = self.ocp.nlp
+            self._solvers[key] = ca.nlpsol(f"wbmpc_{cfg.solver}", cfg.solver, problem, opts)
         return self._solvers[key]
 
     # --- parameters -----------------------------------------------------------------------------------------

@@ -181,40 +181,19 @@ class OCP:
 
     # --- construction -------------------------------------------------------------------------------------
     def _build(self) -> None:
-        robot, form, S = self.robot, self.formulation, self.settings
+        form, S = self.formulation, self.settings
         P = self._declare_parameters()
         p = P.symbols
         n_stages = self.n_nodes - 1
         dts = symbolic_geometric_time_steps(self.n_nodes, p["dt_min"], p["dt_max"])
-        weight = robot.mass * robot.gravity
-        big_force = 10.0 * weight
-
         stages = [
             form.stage(str(k), p["q_hat"], has_input=k < n_stages, has_torque=k < S.n_tau_nodes)
             for k in range(self.n_nodes)
         ]
         x_parts, g_parts, lbg, ubg, eq = [], [], [], [], []
         infos: list[StageInfo] = []
-        offset = 0
+        offset = n_rows = 0
         cost = 0
-
-        def add(name, info, expr, lo, hi):
-            expr = ca.vec(expr)
-            n = expr.numel()
-            lo = np.broadcast_to(np.asarray(lo, dtype=float), (n,))
-            hi = np.broadcast_to(np.asarray(hi, dtype=float), (n,))
-            start = sum(e.numel() for e in g_parts)
-            g_parts.append(expr)
-            lbg.extend(lo)
-            ubg.extend(hi)
-            eq.extend(bool(a == b) for a, b in zip(lo, hi, strict=True))
-            info.rows[name] = slice(start, start + n)
-
-        lo_q, hi_q = robot.joint_position_limits
-        v_max = robot.joint_velocity_limits
-        tau_max = robot.joint_torque_limits
-        x_des = ca.vertcat(p["dq_des"], p["v_des"])
-
         for k, st in enumerate(stages):
             has_input = st.u is not None
             info = StageInfo(
@@ -224,70 +203,23 @@ class OCP:
                 x_offset=offset,
                 u_offset=offset + form.nx if has_input else None,
                 has_torque=st.tau is not None,
+                g_offset=n_rows,
             )
-            x_parts.append(st.x)
-            if has_input:
-                x_parts.append(st.u)
+            x_parts += [st.x, st.u] if has_input else [st.x]
             offset += info.nx + info.nu
-            info.g_offset = sum(e.numel() for e in g_parts)
-
-            # Cost: quadratic tracking with runtime diagonal weights (terminal = stage state cost).
-            cost += ca.dot(p["Q"], (st.x - x_des) ** 2)
-
-            if has_input:
-                contact = p["contact"][:, k]
-                u_des = ca.vertcat(
-                    ca.SX.zeros(self.nv),
-                    *[ca.vertcat(0, 0, p["force_des"][i, k]) for i in range(self.n_feet)],
-                    *([p["ee_force"]] if robot.has_arm else []),
-                    ca.SX.zeros(self.nj) if st.tau is not None else ca.SX(0, 1),
-                )
-                cost += ca.dot(p["R"][: info.nu], (st.u - u_des) ** 2)
-                # Gap-closing transition first (Fatrop structure detection).
-                add("transition", info, stages[k + 1].x - form.transition(st, dts[k]), 0, 0)
-
-            if k == 0:
-                add("initial_state", info, ca.vertcat(st.dq, st.v - p["v_hat"]), 0, 0)
-
-            data = form.kinematics(st) if has_input else cpin.forward_kinematics(self.smodel, st.q, st.v)
-            if has_input:
-                F = st.forces
-                applied = {}
-                for i, frame in enumerate(robot.foot_frames):
-                    applied[frame] = contact[i] * F[3 * i : 3 * i + 3]
-                if robot.has_arm:
-                    applied[robot.ee_frame] = F[3 * self.n_feet : 3 * self.n_feet + 3]
-                add("dynamics", info, form.dynamics_constraints(st, data, applied), 0, 0)
-                if st.tau is not None:
-                    add("torque_limits", info, st.tau, -tau_max, tau_max)
-                cone = []
-                for i in range(self.n_feet):
-                    fx, fy, fz = F[3 * i], F[3 * i + 1], F[3 * i + 2]
-                    relax = 1 - contact[i]
-                    cone += [
-                        (fz + relax * big_force) / weight,
-                        (p["mu"] ** 2 * fz**2 - fx**2 - fy**2 + relax * big_force**2) / weight**2,
-                    ]
-                add("friction_cone", info, ca.vertcat(*cone), 0, np.inf)
-                if robot.has_arm:
-                    add("ee_force", info, F[3 * self.n_feet :] - p["ee_force"], 0, 0)
-                if k >= 1:
-                    rows = []
-                    for i, frame in enumerate(robot.foot_frames):
-                        vel = cpin.frame_velocity(data, frame, cpin.LOCAL_WORLD_ALIGNED).linear
-                        c = contact[i]
-                        rows += [
-                            c * vel[0:2] + (1 - c) * F[3 * i : 3 * i + 2] / weight,
-                            vel[2] - (1 - c) * p["swing_vz"][i, k],
-                        ]
-                    add("foot_velocity", info, ca.vertcat(*rows), 0, 0)
-            if k >= 1:
-                if robot.has_arm and has_input:
-                    ee_vel = cpin.frame_velocity(data, robot.ee_frame, cpin.LOCAL_WORLD_ALIGNED).linear
-                    add("ee_velocity", info, ee_vel - p["ee_velocity"][:, k], 0, 0)
-                add("joint_position_limits", info, st.q[7:], lo_q, hi_q)
-                add("joint_velocity_limits", info, st.v[6:], -v_max, v_max)
-            info.ng = sum(e.numel() for e in g_parts) - info.g_offset
+            stage_p = self.stage_parameter_slices(p, k, dts[k] if has_input else None)
+            x_next = stages[k + 1].x if has_input else None
+            stage_cost, rows = self.stage_terms(k, st, x_next, p, stage_p)
+            cost += stage_cost
+            for name, expr, lo, hi in rows:
+                n = expr.numel()
+                g_parts.append(expr)
+                lbg.extend(lo)
+                ubg.extend(hi)
+                eq.extend(bool(a == b) for a, b in zip(lo, hi, strict=True))
+                info.rows[name] = slice(n_rows, n_rows + n)
+                n_rows += n
+            info.ng = n_rows - info.g_offset
             infos.append(info)
 
         self.params = P
@@ -298,6 +230,119 @@ class OCP:
         self.equality = eq
         self.n_variables = self.nlp["x"].numel()
         self.n_constraints = self.nlp["g"].numel()
+
+    # --- one stage -----------------------------------------------------------------------------------------
+    STAGE_PARAMETERS = ("dt", "contact", "swing_vz", "force_des", "ee_velocity")
+
+    def stage_parameter_sizes(self) -> dict[str, int]:
+        """Sizes of the per-stage parameter blocks (the rest of the parameters are shared by all stages)."""
+        return {
+            "dt": 1,
+            "contact": self.n_feet,
+            "swing_vz": self.n_feet,
+            "force_des": self.n_feet,
+            "ee_velocity": 3,
+        }
+
+    def stage_parameter_slices(self, p: dict, k: int, dt) -> dict | None:
+        """Per-stage parameters of stage ``k`` sliced from the full blocks (``None`` at the terminal node)."""
+        if dt is None:
+            return None
+        return {
+            "dt": dt,
+            "contact": p["contact"][:, k],
+            "swing_vz": p["swing_vz"][:, k],
+            "force_des": p["force_des"][:, k],
+            "ee_velocity": p["ee_velocity"][:, k],
+        }
+
+    def stage_terms(self, k: int, st, x_next, p: dict, sp: dict | None) -> tuple[ca.SX, list]:
+        """Cost and constraint rows of stage ``k``, functions of its own variables only.
+
+        Args:
+            k: Node index (decides the stage type: initial, torque, plain or terminal node).
+            st: The stage variables (:class:`wbmpc.formulations.StageVariables`).
+            x_next: State of node ``k + 1`` (for the transition), ``None`` at the terminal node.
+            p: Shared parameter blocks (symbols).
+            sp: Per-stage parameters (``dt``, ``contact``, ``swing_vz``, ``force_des``, ``ee_velocity``).
+
+        Returns:
+            ``(cost, rows)`` with rows ``(name, expression, lower bounds, upper bounds)`` in Fatrop order.
+        """
+        robot, form = self.robot, self.formulation
+        weight = robot.mass * robot.gravity
+        big_force = 10.0 * weight
+        has_input = st.u is not None
+        rows = []
+
+        def add(name, expr, lo, hi):
+            expr = ca.vec(expr)
+            n = expr.numel()
+            rows.append(
+                (
+                    name,
+                    expr,
+                    np.broadcast_to(np.asarray(lo, float), (n,)),
+                    np.broadcast_to(np.asarray(hi, float), (n,)),
+                )
+            )
+
+        # Cost: quadratic tracking with runtime diagonal weights (terminal = stage state cost).
+        cost = ca.dot(p["Q"], (st.x - ca.vertcat(p["dq_des"], p["v_des"])) ** 2)
+        if has_input:
+            contact = sp["contact"]
+            u_des = ca.vertcat(
+                ca.SX.zeros(self.nv),
+                *[ca.vertcat(0, 0, sp["force_des"][i]) for i in range(self.n_feet)],
+                *([p["ee_force"]] if robot.has_arm else []),
+                ca.SX.zeros(self.nj) if st.tau is not None else ca.SX(0, 1),
+            )
+            cost += ca.dot(p["R"][: st.u.numel()], (st.u - u_des) ** 2)
+            # Gap-closing transition first (Fatrop structure detection).
+            add("transition", x_next - form.transition(st, sp["dt"]), 0, 0)
+        if k == 0:
+            add("initial_state", ca.vertcat(st.dq, st.v - p["v_hat"]), 0, 0)
+
+        data = form.kinematics(st) if has_input else cpin.forward_kinematics(self.smodel, st.q, st.v)
+        if has_input:
+            F = st.forces
+            applied = {frame: contact[i] * F[3 * i : 3 * i + 3] for i, frame in enumerate(robot.foot_frames)}
+            if robot.has_arm:
+                applied[robot.ee_frame] = F[3 * self.n_feet : 3 * self.n_feet + 3]
+            add("dynamics", form.dynamics_constraints(st, data, applied), 0, 0)
+            if st.tau is not None:
+                tau_max = robot.joint_torque_limits
+                add("torque_limits", st.tau, -tau_max, tau_max)
+            cone = []
+            for i in range(self.n_feet):
+                fx, fy, fz = F[3 * i], F[3 * i + 1], F[3 * i + 2]
+                relax = 1 - contact[i]
+                cone += [
+                    (fz + relax * big_force) / weight,
+                    (p["mu"] ** 2 * fz**2 - fx**2 - fy**2 + relax * big_force**2) / weight**2,
+                ]
+            add("friction_cone", ca.vertcat(*cone), 0, np.inf)
+            if robot.has_arm:
+                add("ee_force", F[3 * self.n_feet :] - p["ee_force"], 0, 0)
+            if k >= 1:
+                foot_rows = []
+                for i, frame in enumerate(robot.foot_frames):
+                    vel = cpin.frame_velocity(data, frame, cpin.LOCAL_WORLD_ALIGNED).linear
+                    c = contact[i]
+                    foot_rows += [
+                        c * vel[0:2] + (1 - c) * F[3 * i : 3 * i + 2] / weight,
+                        vel[2] - (1 - c) * sp["swing_vz"][i],
+                    ]
+                add("foot_velocity", ca.vertcat(*foot_rows), 0, 0)
+        if k >= 1:
+            if robot.has_arm and has_input:
+                ee_vel = cpin.frame_velocity(data, robot.ee_frame, cpin.LOCAL_WORLD_ALIGNED).linear
+                add("ee_velocity", ee_vel - sp["ee_velocity"], 0, 0)
+            lo_q, hi_q = robot.joint_position_limits
+            v_max = robot.joint_velocity_limits
+            add("joint_position_limits", st.q[7:], lo_q, hi_q)
+            add("joint_velocity_limits", st.v[6:], -v_max, v_max)
+        return cost, rows
 
     # --- helpers for solvers and controllers -----------------------------------------------------------
     def stage_sizes(self) -> dict[str, list[int]]:

@@ -1,0 +1,347 @@
+"""Code generation of the MPC's NLP for Fatrop, with code size independent of the number of nodes.
+
+CasADi's ``nlpsol`` accepts a compiled library instead of symbolic expressions: it loads ``nlp`` and every
+derivative function the solver needs (``nlp_f``, ``nlp_g``, ``nlp_grad_f``, ``nlp_jac_g``, ``nlp_hess_l``,
+``nlp_grad``) by name, when the library provides them. wbmpc writes those functions itself:
+
+* one set of SX functions per *stage type* (initial node, torque nodes, plain nodes, terminal node): the
+  stage's cost and constraint rows, their gradient, Jacobian and Lagrangian Hessian, with the stage's
+  variables ``(z_k = [x_k, u_k], x_{k+1})``, the shared parameters ``p`` and the per-stage parameters
+  ``s_k = [dt_k, contact, swing_vz, force_des, ee_velocity]`` as inputs;
+* thin MX functions that call them once per node and assemble the block-sparse NLP derivatives (the
+  Hessian is block diagonal, the Jacobian has Fatrop's staircase structure).
+
+The generated C holds each stage function once, so a 30-node problem has the same code as a 15-node one,
+and gcc compiles small functions instead of one huge expression (the monolithic NLP did not compile in
+13 minutes and 9 GB). Everything that was a runtime parameter stays one.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+
+from wbmpc.ocp import OCP
+from wbmpc.time_grid import symbolic_geometric_time_steps
+
+NLP_FUNCTIONS = ("nlp", "nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
+
+
+def stage_kind(ocp: OCP, k: int) -> str:
+    """Stage type of node ``k``: ``initial``, ``torque``, ``plain`` or ``terminal``."""
+    if k == ocp.n_nodes - 1:
+        return "terminal"
+    if k == 0:
+        return "initial"
+    return "torque" if k < ocp.settings.n_tau_nodes else "plain"
+
+
+def stage_functions(ocp: OCP, kind: str, k: int) -> dict[str, ca.Function]:
+    """SX functions of one stage type, built from the OCP's own stage definition at node ``k``."""
+    form = ocp.formulation
+    p = ocp.params.symbols
+    p_vec = ocp.params.vector
+    has_input = kind != "terminal"
+    st = form.stage(f"{kind}", p["q_hat"], has_input=has_input, has_torque=kind in ("initial", "torque"))
+    sizes = ocp.stage_parameter_sizes()
+    s = ca.SX.sym("s", sum(sizes.values()))
+    sp, i = {}, 0
+    for name, n in sizes.items():
+        sp[name] = s[i] if n == 1 else s[i : i + n]
+        i += n
+    x_next = ca.SX.sym("x_next", form.nx) if has_input else ca.SX(0, 1)
+    cost, rows = ocp.stage_terms(k, st, x_next if has_input else None, p, sp if has_input else None)
+    g = ca.vertcat(*[expr for _, expr, _, _ in rows])
+    z = ca.vertcat(st.x, st.u) if has_input else st.x
+    w = ca.vertcat(z, x_next)
+    lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", g.numel())
+    gamma = lam_f * cost + ca.dot(lam_g, g)
+    hess, grad_z = ca.hessian(gamma, z)
+    ins = [z, x_next, p_vec, s]
+    names = ["z", "x_next", "p", "s"]
+    return {
+        "fg": ca.Function(f"{kind}_fg", ins, [cost, g], names, ["f", "g"]),
+        "grad_f": ca.Function(f"{kind}_grad_f", ins, [ca.gradient(cost, z)], names, ["grad_f"]),
+        "jac_g": ca.Function(f"{kind}_jac_g", ins, [g, ca.jacobian(g, w)], names, ["g", "jac_g"]),
+        "hess": ca.Function(
+            f"{kind}_hess",
+            [*ins, lam_f, lam_g],
+            [grad_z, ca.gradient(gamma, x_next), hess],
+            [*names, "lam_f", "lam_g"],
+            ["grad_z", "grad_x_next", "hess"],
+        ),
+        "grad_p": ca.Function(
+            f"{kind}_grad_p",
+            [*ins, lam_f, lam_g],
+            [ca.gradient(gamma, p_vec), ca.gradient(gamma, s)],
+            [*names, "lam_f", "lam_g"],
+            ["grad_p", "grad_s"],
+        ),
+    }
+
+
+def nlp_functions(ocp: OCP) -> list[ca.Function]:
+    """The NLP functions CasADi's Fatrop interface loads from a library, assembled from stage functions."""
+    n_x, n_p = ocp.n_variables, ocp.params.size
+    kinds = {}
+    for info in ocp.stages:
+        kind = stage_kind(ocp, info.k)
+        kinds.setdefault(kind, stage_functions(ocp, kind, info.k))
+
+    X, P = ca.MX.sym("x", n_x), ca.MX.sym("p", n_p)
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ocp.n_constraints)
+    blocks = ocp.params.blocks
+    dt_min = P[blocks["dt_min"][0]]
+    dt_max = P[blocks["dt_max"][0]]
+    dts = symbolic_geometric_time_steps(ocp.n_nodes, dt_min, dt_max)
+
+    def stage_params(k):
+        parts = [dts[k]]
+        for name in ("contact", "swing_vz", "force_des", "ee_velocity"):
+            start, (rows, _) = blocks[name]
+            parts.append(P[start + k * rows : start + (k + 1) * rows])
+        return ca.vertcat(*parts)
+
+    f, g_parts, grad_f, jac_rows, hess_blocks, grad_x, grad_p = 0, [], [], [], [], [], 0
+    carry = None  # gradient of stage k-1 w.r.t. x_k
+    for info in ocp.stages:
+        fn = kinds[stage_kind(ocp, info.k)]
+        nz = info.nx + info.nu
+        z = X[info.x_offset : info.x_offset + nz]
+        has_next = info.u_offset is not None
+        xn = X[info.x_offset + nz : info.x_offset + nz + info.nx] if has_next else ca.MX(0, 1)
+        s = stage_params(info.k) if has_next else ca.MX.zeros(fn["fg"].size1_in(3), 1)
+        lg = lam_g[info.g_offset : info.g_offset + info.ng]
+        ins = [z, xn, P, s]
+        fk, gk = fn["fg"](*ins)
+        f += fk
+        g_parts.append(gk)
+        grad_f.append(fn["grad_f"](*ins))
+        _, jac = fn["jac_g"](*ins)
+        width = nz + xn.numel()
+        jac_rows.append(
+            ca.horzcat(ca.MX(info.ng, info.x_offset), jac, ca.MX(info.ng, n_x - info.x_offset - width))
+        )
+        gz, gxn, hk = fn["hess"](*ins, lam_f, lg)
+        hess_blocks.append(hk)
+        if carry is not None:
+            gz = gz + ca.vertcat(carry, ca.MX(info.nu, 1))
+        grad_x.append(gz)
+        carry = gxn if has_next else None
+        gp, gs = fn["grad_p"](*ins, lam_f, lg)
+        grad_p += gp
+        if has_next:  # chain rule through s_k(p): slices and the geometric time step
+            grad_p += ca.jtimes(s, P, gs, True)
+    g = ca.vertcat(*g_parts)
+    grad_f = ca.vertcat(*grad_f)
+    jac_g = ca.vertcat(*jac_rows)
+    hess = ca.diagcat(*hess_blocks)
+    grad_x = ca.vertcat(*grad_x)
+    return [
+        ca.Function("nlp", [X, P], [f, g], ["x", "p"], ["f", "g"]),
+        ca.Function("nlp_f", [X, P], [f], ["x", "p"], ["f"]),
+        ca.Function("nlp_g", [X, P], [g], ["x", "p"], ["g"]),
+        ca.Function("nlp_grad_f", [X, P], [grad_f], ["x", "p"], ["grad_f_x"]),
+        ca.Function("nlp_jac_g", [X, P], [g, jac_g], ["x", "p"], ["g", "jac_g_x"]),
+        ca.Function(
+            "nlp_hess_l",
+            [X, P, lam_f, lam_g],
+            [grad_x, hess],
+            ["x", "p", "lam_f", "lam_g"],
+            ["grad_gamma_x", "hess_gamma_x_x"],
+        ),
+        ca.Function(
+            "nlp_grad",
+            [X, P, lam_f, lam_g],
+            [f, g, grad_x, grad_p],
+            ["x", "p", "lam_f", "lam_g"],
+            ["f", "g", "grad_gamma_x", "grad_gamma_p"],
+        ),
+    ]
+
+
+# --- building, caching and loading ------------------------------------------------------------------------
+CODEGEN_VERSION = 1  # bump when the generated functions change meaning
+DEFAULT_FLAGS = ("-O1",)
+_SOURCES = (
+    "codegen.py",
+    "ocp.py",
+    "formulations.py",
+    "cpin/kinematics.py",
+    "cpin/rnea.py",
+    "cpin/liegroups.py",
+    "cpin/spatial.py",
+    "cpin/model.py",
+)
+
+
+def cache_dir() -> Path:
+    """Cache folder: ``$WBMPC_CACHE_DIR`` or ``<repo>/.wbmpc_cache`` (git-ignored)."""
+    env = os.environ.get("WBMPC_CACHE_DIR")
+    return Path(env) if env else Path(__file__).resolve().parent.parent / ".wbmpc_cache"
+
+
+def cache_key(ocp: OCP, flags: tuple[str, ...]) -> tuple[str, dict]:
+    """Hash of everything that changes the generated code, and the description it was computed from."""
+    robot = ocp.robot
+    package = Path(__file__).resolve().parent
+    sources = hashlib.sha256(b"".join((package / f).read_bytes() for f in _SOURCES)).hexdigest()
+    description = {
+        "codegen_version": CODEGEN_VERSION,
+        "formulation": ocp.settings.formulation,
+        "n_nodes": ocp.settings.n_nodes,
+        "n_tau_nodes": ocp.settings.n_tau_nodes,
+        "robot": robot.name,
+        "urdf_sha256": hashlib.sha256(Path(robot.urdf_path).read_bytes()).hexdigest(),
+        "locked_joints": robot.locked_joints,
+        "contact_frames": list(robot.contact_frames),
+        "mass": robot.mass,
+        "flags": list(flags),
+        "casadi": ca.__version__,
+        "compiler": _compiler_version(),
+        "wbmpc_sources_sha256": sources,
+    }
+    key = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+    return key, description
+
+
+@dataclass
+class CompiledNLP:
+    """A compiled NLP library in the cache, with its build record."""
+
+    library: Path
+    key: str
+    build_s: float
+    build_peak_mb: float
+    c_bytes: int
+    rebuilt: bool
+
+
+def build(
+    ocp: OCP,
+    flags: tuple[str, ...] = DEFAULT_FLAGS,
+    directory: Path | None = None,
+    progress: bool = True,
+    force: bool = False,
+) -> CompiledNLP:
+    """Generate and compile the NLP functions of ``ocp``, or reuse the cached library.
+
+    Safe when several processes build at once (a file lock serialises builds of the same key); a cached
+    library whose checksum does not match its record, or that does not load, is rebuilt.
+
+    Args:
+        ocp: The problem.
+        flags: Compiler flags (part of the cache key).
+        directory: Cache folder (default :func:`cache_dir`).
+        progress: Print what happens and show elapsed time while gcc runs.
+        force: Rebuild even if a valid library is cached.
+    """
+    key, description = cache_key(ocp, tuple(flags))
+    folder = Path(directory or cache_dir()) / key
+    folder.mkdir(parents=True, exist_ok=True)
+    library, record = folder / "libwbmpc_nlp.so", folder / "build.json"
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not force and _valid(library, record):
+            info = json.loads(record.read_text())
+            return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], False)
+        start = time.perf_counter()
+        if progress:
+            print(f"[wbmpc.codegen] generating C for {ocp.n_nodes} nodes ({key}) ...", flush=True)
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            tmp = Path(tmp)
+            generator = ca.CodeGenerator("wbmpc_nlp.c", {"with_header": True})
+            for function in nlp_functions(ocp):
+                generator.add(function)
+            generator.generate(str(tmp) + os.sep)
+            c_file = tmp / "wbmpc_nlp.c"
+            c_bytes = c_file.stat().st_size
+            peak_mb = _compile(c_file, tmp / "lib.so", flags, progress, c_bytes)
+            shutil.copy(c_file, folder / "wbmpc_nlp.c")
+            shutil.copy(tmp / "wbmpc_nlp.h", folder / "wbmpc_nlp.h")
+            os.replace(tmp / "lib.so", library)  # atomic: readers never see a half-written library
+        build_s = time.perf_counter() - start
+        record.write_text(
+            json.dumps(
+                {
+                    **description,
+                    "key": key,
+                    "build_s": build_s,
+                    "build_peak_mb": peak_mb,
+                    "c_bytes": c_bytes,
+                    "library_sha256": _sha256(library),
+                },
+                indent=2,
+            )
+        )
+        if progress:
+            print(
+                f"[wbmpc.codegen] built {library} in {build_s:.0f} s (gcc peak {peak_mb:.0f} MB)", flush=True
+            )
+        return CompiledNLP(library, key, build_s, peak_mb, c_bytes, True)
+
+
+def _valid(library: Path, record: Path) -> bool:
+    if not (library.is_file() and record.is_file()):
+        return False
+    try:
+        if json.loads(record.read_text()).get("library_sha256") != _sha256(library):
+            return False
+        ca.external("nlp_hess_l", str(library))
+    except (ValueError, RuntimeError, OSError):
+        return False
+    return True
+
+
+def _compile(c_file: Path, output: Path, flags, progress: bool, c_bytes: int) -> float:
+    """Run gcc, return its peak resident memory [MB] (from wait4); show elapsed time while it runs."""
+    command = ["gcc", *flags, "-shared", "-fPIC", str(c_file), "-o", str(output)]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    bar, start, last = None, time.perf_counter(), 0.0
+    desc = f"gcc {' '.join(flags)} ({c_bytes / 1e6:.1f} MB of C)"
+    if progress and sys.stderr.isatty():
+        from tqdm.auto import tqdm
+
+        bar = tqdm(desc=desc, bar_format="{desc}: {elapsed}")
+    while True:
+        pid, status, usage = os.wait4(process.pid, os.WNOHANG)
+        if pid:
+            break
+        time.sleep(0.5)
+        if bar is not None:
+            bar.refresh()
+        elif progress and time.perf_counter() - last > 15.0:  # no terminal: a line every 15 s
+            last = time.perf_counter()
+            print(f"[wbmpc.codegen] {desc}: {last - start:.0f} s", flush=True)
+    process.returncode = os.waitstatus_to_exitcode(status)
+    stderr = process.stderr.read().decode(errors="replace")
+    process.stderr.close()
+    if bar is not None:
+        bar.close()
+    if process.returncode != 0:
+        raise RuntimeError(f"compiling {c_file} failed:\n{stderr[-2000:]}")
+    return usage.ru_maxrss / 1024  # kB on Linux
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _compiler_version() -> str:
+    try:
+        return subprocess.run(
+            ["gcc", "--version"], capture_output=True, text=True, check=True
+        ).stdout.splitlines()[0]
+    except (OSError, subprocess.CalledProcessError):
+        return "gcc not found"
