@@ -74,13 +74,13 @@ def test_stage_code_is_not_repeated_per_node(tmp_path):
             generator.add(function)
         generator.generate(str(tmp_path) + "/")
         sizes.append((tmp_path / f"nlp_{n_nodes}.c").stat().st_size)
-    # Only the per-node calls and sparsity patterns grow (~40 kB/node); a stage's code (~1.5 MB) is not copied.
+    # Only per-node calls and sparsity patterns grow (~40 kB/node); a stage's code (~1.5 MB) is not copied.
     per_node = (sizes[1] - sizes[0]) / 8
     assert per_node < 0.02 * sizes[0], sizes
 
 
-def test_compiled_solver_matches_in_process(tmp_path, monkeypatch):
-    monkeypatch.setenv("WBMPC_CACHE_DIR", str(tmp_path))
+def test_compiled_solver_matches_in_process(shared_cache, monkeypatch):
+    monkeypatch.setenv("WBMPC_CACHE_DIR", str(shared_cache))
     robot = load_b1()
     settings = OCPSettings(n_nodes=3, n_tau_nodes=1)
     plans = []

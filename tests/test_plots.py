@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import matplotlib.pyplot as plt
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import fake_plan
 from matplotlib.figure import Figure
 
 from wbmpc.plots import (
@@ -58,18 +57,7 @@ def log(robot):
 
 @pytest.fixture(scope="module")
 def plan(robot):
-    """A fake 15-node plan: geometric steps 10 -> 100 ms, a trot switch at node 11."""
-    n_nodes = 15
-    dts = 0.01 * (10.0 ** (np.arange(n_nodes - 1) / (n_nodes - 2)))
-    q = np.tile(robot.q_nominal, (n_nodes, 1))
-    q[:, 0] = np.linspace(0.0, 0.1, n_nodes)
-    contact = np.zeros((4, n_nodes - 1), dtype=bool)
-    contact[[1, 2], :11] = True
-    contact[[0, 3], 11:] = True
-    forces = np.zeros((n_nodes - 1, 5, 3))
-    forces[:, :4, 2] = 300.0 * contact.T
-    return SimpleNamespace(t=0.5, dts=dts, node_times=0.5 + np.concatenate([[0.0], np.cumsum(dts)]), q=q,
-                           forces=forces, contact=contact, success=True, iterations=6, solve_time=0.17)
+    return fake_plan(robot, t0=0.5, ee_force_z=0.0)
 
 
 def _check_labels(fig: Figure, n_axes: int) -> None:

@@ -6,11 +6,10 @@ skipped, with the reason, only if that server cannot start on the machine.
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import fake_plan
 
 from wbmpc import viz
 from wbmpc.robot import load_b1_z1
@@ -34,19 +33,7 @@ def viewer(robot):
 
 @pytest.fixture(scope="module")
 def plan(robot):
-    """A fake 15-node plan (no solve): the base moves 10 cm, the end effector force is 20 N down."""
-    n_nodes = 15
-    dts = 0.01 * (10.0 ** (np.arange(n_nodes - 1) / (n_nodes - 2)))
-    q = np.tile(robot.q_nominal, (n_nodes, 1))
-    q[:, 0] = np.linspace(0.0, 0.1, n_nodes)
-    contact = np.zeros((4, n_nodes - 1), dtype=bool)
-    contact[[1, 2], :11] = True
-    contact[[0, 3], 11:] = True
-    forces = np.zeros((n_nodes - 1, 5, 3))
-    forces[:, :4, 2] = 300.0 * contact.T
-    forces[:, 4, 2] = -20.0
-    return SimpleNamespace(t=0.0, dts=dts, node_times=np.concatenate([[0.0], np.cumsum(dts)]), q=q,
-                           forces=forces, contact=contact)
+    return fake_plan(robot, t0=0.0, ee_force_z=-20.0)
 
 
 def _frame_placements(model, q, names):

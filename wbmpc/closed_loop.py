@@ -91,11 +91,12 @@ class ClosedLoopLog:
     violation: list = field(default_factory=list)
     status: list = field(default_factory=list)
     ee_command: list = field(default_factory=list)
+    timings: list = field(default_factory=list)
     plans: list = field(default_factory=list)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Every series as a numpy array (plans excluded)."""
-        return {k: np.asarray(v) for k, v in self.__dict__.items() if k != "plans"}
+        """Every series as a numpy array (plans and per-solve timing dicts excluded)."""
+        return {k: np.asarray(v) for k, v in self.__dict__.items() if k not in ("plans", "timings")}
 
 
 @dataclass
@@ -218,6 +219,7 @@ def _log_solve(log: ClosedLoopLog, plan: MPCSolution, keep_plans: bool) -> None:
     log.fallback.append(plan.fallback)
     log.violation.append(plan.constraint_violation)
     log.status.append(plan.status)
+    log.timings.append(plan.timings)
     if keep_plans:
         log.plans.append(plan)
 

@@ -181,6 +181,7 @@ class MPCSolution:
     fallback: bool = False
     w: np.ndarray | None = None
     lam_g: np.ndarray | None = None
+    timings: dict = field(default_factory=dict)
 
     @property
     def node_times(self) -> np.ndarray:
@@ -208,55 +209,49 @@ class WholeBodyMPC:
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0}
         self._data = robot.model.createData()
         self.compiled_nlp = None
+        self.last_inputs: dict | None = None
         self.verbose = True
 
     # --- solver construction --------------------------------------------------------------------------------
     def _solver(self, cold: bool) -> ca.Function:
-        cfg = self.config
-        key = (cfg.solver, cold)
+        """The solver for cold or warm starts (built on first use)."""
+        key = (self.config.solver, cold)
         if key not in self._solvers:
-            max_iter = cfg.cold_max_iter if cold else cfg.max_iter
-            mu_init = cfg.mu_init_cold if cold else cfg.mu_init_warm
-            if cfg.solver == "fatrop":
-                inner = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init}
-                if not cold:
-                    # The casadi 3.8.2 Fatrop plugin accepts bound_push but not the warm_start_* options.
-                    inner["bound_push"] = 1e-7
-                opts = {
-                    "expand": True,
-                    "structure_detection": "auto",
-                    "equality": self.ocp.equality,
-                    "print_time": False,
-                    "fatrop": inner,
-                }
-            else:
-                ipopt = {
-                    "print_level": 0,
-                    "tol": cfg.tol,
-                    "max_iter": max_iter,
-                    "mu_init": mu_init,
-                    "sb": "yes",
-                }
-                if not cold:
-                    ipopt |= {
-                        "warm_start_init_point": "yes",
-                        "warm_start_bound_push": 1e-7,
-                        "warm_start_mult_bound_push": 1e-7,
-                    }
-                opts = {"expand": True, "print_time": False, "ipopt": ipopt}
-            if cfg.compiled:
-                from wbmpc import codegen
-
-                if self.compiled_nlp is None:
-                    self.compiled_nlp = codegen.build(
-                        self.ocp, tuple(cfg.compile_flags), progress=self.verbose
-                    )
-                opts.pop("expand")
-                problem = str(self.compiled_nlp.library)
-            else:
-                problem = self.ocp.nlp
-            self._solvers[key] = ca.nlpsol(f"wbmpc_{cfg.solver}", cfg.solver, problem, opts)
+            self._solvers[key] = self.make_solver(f"wbmpc_{self.config.solver}", cold)
         return self._solvers[key]
+
+    def make_solver(self, name: str, cold: bool) -> ca.Function:
+        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config."""
+        cfg = self.config
+        max_iter = cfg.cold_max_iter if cold else cfg.max_iter
+        mu_init = cfg.mu_init_cold if cold else cfg.mu_init_warm
+        if cfg.solver == "fatrop":
+            inner = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init}
+            if not cold:
+                # The casadi 3.8.2 Fatrop plugin accepts bound_push but not the warm_start_* options.
+                inner["bound_push"] = 1e-7
+            opts = {
+                "structure_detection": "auto",
+                "equality": self.ocp.equality,
+                "print_time": False,
+                "fatrop": inner,
+            }
+        else:
+            ipopt = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init, "sb": "yes"}
+            if not cold:
+                ipopt |= {
+                    "warm_start_init_point": "yes",
+                    "warm_start_bound_push": 1e-7,
+                    "warm_start_mult_bound_push": 1e-7,
+                }
+            opts = {"print_time": False, "ipopt": ipopt}
+        if cfg.compiled:
+            from wbmpc import codegen
+
+            if self.compiled_nlp is None:
+                self.compiled_nlp = codegen.build(self.ocp, tuple(cfg.compile_flags), progress=self.verbose)
+            return ca.nlpsol(name, cfg.solver, str(self.compiled_nlp.library), opts)
+        return ca.nlpsol(name, cfg.solver, self.ocp.nlp, {**opts, "expand": True})
 
     # --- parameters -----------------------------------------------------------------------------------------
     def time_steps(self) -> np.ndarray:
@@ -413,6 +408,7 @@ class WholeBodyMPC:
         args = {"x0": x0, "p": p, "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
         if not cold and self.config.dual_warm_start and self.previous.lam_g is not None:
             args["lam_g0"] = self.previous.lam_g
+        self.last_inputs = args  # what the solver was called with (for replays, exports, debugging)
         self.stats["solves"] += 1
         start = time.perf_counter()
         try:
@@ -426,39 +422,32 @@ class WholeBodyMPC:
             status = str(stats.get("return_status", "unknown"))
             iterations = int(stats.get("iter_count", -1))
             lam_g = np.array(out["lam_g"]).ravel()
+            timings = solver_timings(stats, elapsed)
         except RuntimeError as exc:  # the solver raised (e.g. NaN in an evaluation): counted, not fatal
             elapsed = time.perf_counter() - start
             self.stats["exceptions"] += 1
-            success, status, iterations, violation, w, lam_g = (
-                False,
-                f"exception: {exc}",
-                -1,
-                np.inf,
-                None,
-                None,
-            )
+            success, status, iterations, violation = False, f"exception: {exc}", -1, np.inf
+            w = lam_g = None
+            timings = {"wall": elapsed}
+        report = {
+            "success": success,
+            "status": status,
+            "iterations": iterations,
+            "solve_time": elapsed,
+            "constraint_violation": violation,
+            "timings": timings,
+        }
         if not success:
             self.stats["failures"] += 1
             if self.previous is not None:
-                fallback = replace(
-                    self.previous,
-                    fallback=True,
-                    success=False,
-                    status=status,
-                    iterations=iterations,
-                    solve_time=elapsed,
-                    constraint_violation=violation,
-                )
-                return fallback
+                return replace(self.previous, fallback=True, **report)
             if w is None:
                 w = x0
-        solution = self._solution(w, lam_g, q_hat, t, params, success, iterations, elapsed, status, violation)
+        solution = self._solution(w, lam_g, q_hat, t, params, report)
         self.previous = solution
         return solution
 
-    def _solution(
-        self, w, lam_g, q_hat, t, params, success, iterations, elapsed, status, violation
-    ) -> MPCSolution:
+    def _solution(self, w, lam_g, q_hat, t, params, report: dict) -> MPCSolution:
         parts = self.ocp.split(w)
         model = self.robot.model
         q = np.array([pin.integrate(model, q_hat, d) for d in parts["dq"]])
@@ -473,18 +462,34 @@ class WholeBodyMPC:
             forces=forces,
             tau=parts["tau"],
             contact=params["contact"] > 0.5,
-            success=success,
-            iterations=iterations,
-            solve_time=elapsed,
-            status=status,
-            constraint_violation=violation,
             w=w,
             lam_g=lam_g,
+            **report,
         )
 
     def reset(self) -> None:
         """Forget the previous plan (the next solve is a cold start)."""
         self.previous = None
+
+
+def solver_timings(stats: dict, wall: float) -> dict:
+    """Where a solve's time went [s]: derivative evaluations, the solver's own work, Python overhead."""
+    evaluations = sum(v for k, v in stats.items() if k.startswith("t_wall_nlp_"))
+    fatrop = stats.get("fatrop") if isinstance(stats.get("fatrop"), dict) else {}
+    # Fatrop reports its own total; otherwise CasADi's, when it records one.
+    total = float(fatrop.get("time_total", stats.get("t_wall_total", wall)))
+    out = {
+        "wall": wall,
+        "evaluations": float(evaluations),
+        "hessian": float(stats.get("t_wall_nlp_hess_l", 0.0)),
+        "jacobian": float(stats.get("t_wall_nlp_jac_g", 0.0)),
+        "solver": total - float(evaluations),
+        "overhead": wall - total,
+    }
+    if fatrop:  # Fatrop's own split of its work
+        out["search_direction"] = float(fatrop.get("compute_sd_time", 0.0))
+        out["initialization"] = float(fatrop.get("initialization_time", 0.0))
+    return out
 
 
 def heading(q: np.ndarray) -> float:

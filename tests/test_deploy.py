@@ -1,0 +1,61 @@
+"""Deployment: the exported C solver, driven by a C program, reproduces the Python solution."""
+
+import json
+import subprocess
+
+import numpy as np
+
+from wbmpc import deploy
+from wbmpc.gait import make_gait
+from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.ocp import OCPSettings
+from wbmpc.robot import load_b1
+
+
+def test_c_program_matches_python(shared_cache, tmp_path, monkeypatch):
+    monkeypatch.setenv("WBMPC_CACHE_DIR", str(shared_cache))
+    robot = load_b1()
+    config = MPCConfig(gait=make_gait("stand"), compiled=True, compile_flags=("-O0",), dt_max=0.02)
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=3, n_tau_nodes=1), config)
+    mpc.verbose = False
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    q[2] += 0.01  # not exactly the nominal pose: a non-trivial solve
+    plan = mpc.solve(q, v, warm_start=False)
+    assert plan.success
+
+    folder = deploy.export(mpc, tmp_path / "deploy", warm=False, flags=("-O0",))
+    layout = json.loads((folder / "layout.json").read_text())
+    assert [i["name"] for i in layout["inputs"]] == [
+        "x0",
+        "p",
+        "lbx",
+        "ubx",
+        "lbg",
+        "ubg",
+        "lam_x0",
+        "lam_g0",
+    ]
+    assert layout["n_variables"] == mpc.ocp.n_variables
+    assert {b["name"] for b in layout["parameters"]} >= {"q_hat", "v_hat", "Q", "R", "contact"}
+
+    # The same inputs the Python solve used, written for the C program.
+    args = mpc.last_inputs
+    n, m = mpc.ocp.n_variables, mpc.ocp.n_constraints
+    inputs = [
+        args["x0"],
+        args["p"],
+        np.full(n, -np.inf),
+        np.full(n, np.inf),
+        args["lbg"],
+        args["ubg"],
+        np.zeros(n),
+        np.zeros(m),
+    ]
+    deploy.write_inputs(folder / "inputs.bin", inputs)
+    program = deploy.build_example(folder)
+    run = subprocess.run(
+        [str(program), "inputs.bin", "solution.bin"], cwd=folder, capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 0, run.stderr
+    x_c = np.fromfile(folder / "solution.bin")
+    np.testing.assert_allclose(x_c, plan.w, atol=1e-8)
