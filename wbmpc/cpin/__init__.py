@@ -12,6 +12,16 @@ Example:
     >>> tau = cpin.rnea(smodel, q, v, a, {"FL_foot": ca.SX.sym("f", 3)})
 """
 
+from wbmpc.cpin.aba import aba, aba_function
+from wbmpc.cpin.centroidal import (
+    centroidal_map,
+    centroidal_map_time_variation,
+    centroidal_momentum,
+    centroidal_momentum_rate,
+    generalized_gravity,
+    static_torque_estimate,
+)
+from wbmpc.cpin.crba import crba
 from wbmpc.cpin.kinematics import (
     LOCAL,
     LOCAL_WORLD_ALIGNED,
@@ -28,6 +38,15 @@ from wbmpc.cpin.model import SymbolicModel
 from wbmpc.cpin.rnea import rnea, rnea_function
 
 __all__ = [
+    "aba",
+    "aba_function",
+    "centroidal_map",
+    "centroidal_map_time_variation",
+    "centroidal_momentum",
+    "centroidal_momentum_rate",
+    "crba",
+    "generalized_gravity",
+    "static_torque_estimate",
     "LOCAL",
     "LOCAL_WORLD_ALIGNED",
     "WORLD",

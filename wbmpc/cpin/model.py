@@ -75,6 +75,9 @@ class SymbolicModel:
         if short == "JointModelFreeFlyer":
             if j != 1 or model.parents[j] != 0:
                 raise ValueError(f"free-flyer joint {model.names[j]!r} must be the root joint")
+            if not np.allclose(placement.homogeneous, np.eye(4), atol=1e-12):
+                # The symbolic algorithms take the base pose from q directly, as URDF free flyers have it.
+                raise ValueError(f"free-flyer joint {model.names[j]!r} must have an identity joint placement")
             kind, axis, axis_vector = "freeflyer", None, np.zeros(3)
         elif short in _ALIGNED:
             kind, axis = _ALIGNED[short]

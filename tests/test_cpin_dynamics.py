@@ -1,0 +1,231 @@
+"""Dynamics of the CasADi mirror (wbmpc.cpin): CRBA, ABA, centroidal map and static torques vs Pinocchio."""
+
+import functools
+from types import SimpleNamespace
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+import pytest
+from test_cpin import pin_fext, random_state
+
+from wbmpc import cpin
+from wbmpc.cpin.aba import aba, aba_function
+from wbmpc.cpin.centroidal import (
+    centroidal_map,
+    centroidal_map_time_variation,
+    centroidal_momentum,
+    centroidal_momentum_rate,
+    generalized_gravity,
+    static_torque_estimate,
+)
+from wbmpc.cpin.crba import crba
+from wbmpc.robot import load_b1, load_b1_z1
+from wbmpc.statics import static_equilibrium
+
+RTOL = 1e-9  # relative to the largest magnitude of the expected value
+N_STATES = 20
+PAPER_FORWARD_DYNAMICS_INSTRUCTIONS = 7764
+
+
+def assert_close(got, expected, rtol=RTOL):
+    got, expected = np.asarray(got, dtype=float), np.asarray(expected, dtype=float)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=rtol * max(1.0, np.abs(expected).max()))
+
+
+def build(robot):
+    """Every symbolic function of the module, built once per robot (5 or 4 contact frames)."""
+    smodel = cpin.SymbolicModel(robot.model)
+    q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
+    F = ca.SX.sym("F", 3 * len(robot.contact_frames))
+    forces = {name: F[3 * i : 3 * i + 3] for i, name in enumerate(robot.contact_frames)}
+    return SimpleNamespace(
+        smodel=smodel,
+        crba=ca.Function("crba", [q], [crba(smodel, q)]),
+        aba={m: aba_function(smodel, robot.contact_frames, method=m) for m in ("articulated", "crba")},
+        rnea=cpin.rnea_function(smodel, robot.contact_frames),
+        A=ca.Function("A", [q], [centroidal_map(smodel, q)]),
+        dA=ca.Function("dA", [q, v], [centroidal_map_time_variation(smodel, q, v)]),
+        h=ca.Function("h", [q, v], [centroidal_momentum(smodel, q, v)]),
+        hdot=ca.Function("hdot", [q, F], [centroidal_momentum_rate(smodel, q, forces)]),
+        g=ca.Function("g", [q], [generalized_gravity(smodel, q)]),
+        static=ca.Function("static", [q, F], [static_torque_estimate(smodel, q, forces)]),
+    )
+
+
+def synthetic_robot(seed=0):
+    """A random tree that the B1 models do not exercise: prismatic and unaligned joints, rotated joint
+    placements, a branch below the base, random inertias, and a contact frame on the base itself."""
+    pin.seed(seed)
+    rng = np.random.default_rng(seed)
+    model = pin.Model()
+
+    def add(parent, joint, name):
+        placement = pin.SE3.Identity() if parent == 0 else pin.SE3.Random()
+        j = model.addJoint(parent, joint, placement, name)
+        model.appendBodyToJoint(j, pin.Inertia.Random(), pin.SE3.Identity())
+        return j
+
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    root = add(0, pin.JointModelFreeFlyer(), "root")
+    a = add(add(add(root, pin.JointModelRY(), "a1"), pin.JointModelPZ(), "a2"),
+            pin.JointModelRevoluteUnaligned(axis), "a3")
+    b = add(root, pin.JointModelPX(), "b1")
+    b_tip = add(add(b, pin.JointModelPrismaticUnaligned(axis[::-1].copy()), "b2"), pin.JointModelRX(), "b3")
+    c = add(b, pin.JointModelRZ(), "c1")  # second child of b1
+    frames = ("tip_a", "tip_b", "tip_c", "on_base")
+    for joint, name in zip((a, b_tip, c, root), frames, strict=True):
+        model.addFrame(pin.Frame(name, joint, 0, pin.SE3.Random(), pin.FrameType.OP_FRAME))
+    model.lowerPositionLimit = -np.ones(model.nq)
+    model.upperPositionLimit = np.ones(model.nq)
+    return SimpleNamespace(model=model, contact_frames=frames, nv=model.nv)
+
+
+@functools.cache
+def robot_and_functions(name):
+    robot = {"b1_z1": load_b1_z1, "b1": load_b1, "synthetic": synthetic_robot}[name]()
+    return robot, build(robot)
+
+
+@pytest.fixture(params=["b1_z1", "b1", "synthetic"])
+def setup(request):
+    return robot_and_functions(request.param)
+
+
+def states(robot, seed):
+    """Seeded random (q, v, F): unit quaternion, joints within limits, ~100 N forces."""
+    rng = np.random.default_rng(seed)
+    for _ in range(N_STATES):
+        q, v, _ = random_state(robot.model, rng)
+        yield q, v, rng.normal(scale=100.0, size=3 * len(robot.contact_frames)), rng
+
+
+def test_crba_matches_pinocchio(setup):
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    for q, _, _, _ in states(robot, 10):
+        M = np.array(f.crba(q))
+        expected = pin.crba(model, data, q)
+        expected = np.triu(expected) + np.triu(expected, 1).T  # Pinocchio fills the upper triangle only
+        np.testing.assert_array_equal(M, M.T)
+        assert_close(M, expected)
+
+
+@pytest.mark.parametrize("method", ["articulated", "crba"])
+def test_aba_matches_pinocchio(setup, method):
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    for q, v, F, rng in states(robot, 11):
+        tau = rng.normal(scale=20.0, size=model.nv)  # a base wrench too: both sides treat it alike
+        expected = pin.aba(model, data, q, v, tau, pin_fext(model, data, q, robot.contact_frames, F))
+        assert_close(np.array(f.aba[method](q, v, tau, F)).ravel(), expected)
+
+
+@pytest.mark.parametrize("method", ["articulated", "crba"])
+def test_aba_inverts_rnea(setup, method):
+    robot, f = setup
+    for q, v, F, rng in states(robot, 12):
+        a = rng.normal(size=robot.nv)
+        tau = np.array(f.rnea(q, v, a, F)).ravel()
+        # Absolute error on a ~ 1 after a round trip through torques of ~100 N m.
+        assert_close(np.array(f.aba[method](q, v, tau, F)).ravel(), a, rtol=1e-9 * np.abs(tau).max())
+
+
+def test_centroidal_map_and_momentum_match_pinocchio(setup):
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    for q, v, _, _ in states(robot, 13):
+        A = np.array(f.A(q))
+        assert_close(A, pin.computeCentroidalMap(model, data, q))
+        h = np.array(f.h(q, v)).ravel()
+        assert_close(h, pin.computeCentroidalMomentum(model, data, q, v).vector)
+        assert_close(h, A @ v)
+
+
+def test_centroidal_map_time_variation_matches_pinocchio(setup):
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    for q, v, _, _ in states(robot, 14):
+        dA = np.array(f.dA(q, v))
+        assert_close(dA, pin.dccrba(model, data, q, v))
+        # computeCentroidalMapTimeVariation reads data.vcom[0] without computing it: refresh it first.
+        pin.computeCentroidalMomentum(model, data, q, v)
+        assert_close(dA, pin.computeCentroidalMapTimeVariation(model, data, q, v))
+
+
+def test_centroidal_map_time_variation_is_the_time_derivative(setup):
+    """dA/dt against a central difference of A along q(t) = q (+) v t (Pinocchio-independent)."""
+    robot, f = setup
+    model, step = robot.model, 1e-6
+    for q, v, _, _ in states(robot, 15):
+        A_plus = np.array(f.A(pin.integrate(model, q, v * step)))
+        A_minus = np.array(f.A(pin.integrate(model, q, -v * step)))
+        # Central difference: truncation ~ step^2, rounding ~ 1e-16 |A| / step ~ 1e-8 of the scale.
+        assert_close(np.array(f.dA(q, v)), (A_plus - A_minus) / (2 * step), rtol=1e-7)
+
+
+def test_momentum_rate_only_depends_on_external_forces(setup):
+    """A a + dA v = [m g + sum F; sum (p - c) x F] under any joint torques (they are internal)."""
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    for q, v, F, rng in states(robot, 16):
+        tau = np.concatenate([np.zeros(6), rng.normal(scale=20.0, size=model.nv - 6)])
+        a = pin.aba(model, data, q, v, tau, pin_fext(model, data, q, robot.contact_frames, F))
+        hdot = np.array(f.A(q)) @ a + np.array(f.dA(q, v)) @ v
+        assert_close(np.array(f.hdot(q, F)).ravel(), hdot, rtol=1e-8)
+
+
+def test_generalized_gravity_and_static_torques_match_rnea(setup):
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    zero = np.zeros(model.nv)
+    for q, _, F, _ in states(robot, 17):
+        g = np.array(f.g(q)).ravel()
+        assert_close(g, pin.computeGeneralizedGravity(model, data, q))
+        assert_close(g, np.array(f.rnea(q, zero, zero, np.zeros_like(F))).ravel())
+        expected = pin.rnea(model, data, q, zero, zero, pin_fext(model, data, q, robot.contact_frames, F))
+        assert_close(np.array(f.static(q, F)).ravel(), expected[6:])
+
+
+@pytest.mark.parametrize("name", ["b1_z1", "b1"])
+def test_static_torque_estimate_holds_the_nominal_pose(name):
+    """At a static equilibrium rnea(q, 0, 0, F) = [0; tau]: tau = g_j - J_j^T F, not J_j^T F - g_j."""
+    robot, f = robot_and_functions(name)
+    q = robot.q_nominal
+    ee_force = (0.0, 0.0, -50.0) if robot.has_arm else None  # the arm carries a 5 kg load
+    eq = static_equilibrium(robot, q, [True] * 4, ee_force=ee_force)
+    F = np.concatenate([eq.forces.ravel(), eq.ee_force if robot.has_arm else []])
+    tau = np.array(f.static(q, F)).ravel()
+    assert_close(tau, eq.tau)
+    zero = np.zeros(robot.nv)
+    assert_close(np.array(f.rnea(q, zero, zero, F)).ravel(), np.concatenate([np.zeros(6), eq.tau]))
+    # The legs hold the body with tens of N m, so the opposite sign (J_j^T F - g_j = -tau) cannot pass.
+    assert np.abs(eq.tau).max() > 10.0
+
+
+def test_instruction_counts():
+    """The forward dynamics stays below the paper's constraint (7,764 instructions, 5 contact frames), and
+    the default algorithm is the smaller one."""
+    robot = load_b1_z1()
+    smodel = cpin.SymbolicModel(robot.model)
+    counts = {
+        m: aba_function(smodel, robot.contact_frames, m).n_instructions() for m in ("articulated", "crba")
+    }
+    assert counts["articulated"] <= counts["crba"] <= PAPER_FORWARD_DYNAMICS_INSTRUCTIONS
+    assert aba_function(smodel, robot.contact_frames).n_instructions() == counts["articulated"]
+    q = ca.SX.sym("q", smodel.nq)
+    zero = ca.SX.zeros(smodel.nv)
+    via_rnea = ca.Function("g", [q], [cpin.rnea(smodel, q, zero, zero)]).n_instructions()
+    assert ca.Function("g", [q], [generalized_gravity(smodel, q)]).n_instructions() < via_rnea
+
+
+def test_errors_are_named():
+    smodel = cpin.SymbolicModel(load_b1().model)
+    q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
+    with pytest.raises(ValueError, match="unknown forward-dynamics method"):
+        aba(smodel, q, v, v, method="lu")
+    with pytest.raises(ValueError, match="no_such_foot"):
+        static_torque_estimate(smodel, q, {"no_such_foot": ca.SX.zeros(3)})
+    with pytest.raises(ValueError, match="no_such_foot"):
+        centroidal_momentum_rate(smodel, q, {"no_such_foot": ca.SX.zeros(3)})
