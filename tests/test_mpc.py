@@ -157,3 +157,20 @@ def test_bad_state_is_named(robot, standing):
         mpc.solve(q, np.zeros(robot.nv))
     with pytest.raises(ValueError, match=r"v_hat must have shape \(22,\)"):
         mpc.solve(robot.q_nominal, np.zeros(21))
+
+
+def test_closed_loop_trot_on_pybullet_stays_upright(robot):
+    """The same MPC on a physics engine (contacts from collisions, not the schedule), pure feed-forward."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("trot")))
+    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.4, plant="pybullet"), progress=False)
+    s = result.summary
+    assert s["plant"] == "pybullet"
+    assert not result.fell and s["max_tilt_rad"] < 0.2
+    assert s["converged_fraction"] >= 0.95
+    assert result.log.arrays()["q"][:, 2].min() > 0.4
+
+
+def test_unknown_plant_is_named(robot):
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))
+    with pytest.raises(ValueError, match="unknown plant 'mujoco'"):
+        run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, plant="mujoco"), progress=False)

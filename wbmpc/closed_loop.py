@@ -29,6 +29,8 @@ class ClosedLoopConfig:
         mpc_rate: MPC update rate [Hz] (paper: 80).
         low_level_rate: Interpolation + PD rate [Hz] (paper: 500).
         plant_dt: Plant integration step [s]; must divide both control periods.
+        plant: ``"rigid"`` (Pinocchio forward dynamics, scheduled feet in rigid contact: the paper's
+            benchmark) or ``"pybullet"`` (a physics engine: contacts happen, feet can slip).
         kp, kd: Joint PD gains of the low level [N m/rad], [N m s/rad] (paper, simulation without delay: 0).
         base_velocity: Commanded base linear velocity [m/s], heading frame.
         base_yaw_rate: Commanded yaw rate [rad/s].
@@ -45,6 +47,7 @@ class ClosedLoopConfig:
     mpc_rate: float = 80.0
     low_level_rate: float = 500.0
     plant_dt: float = 0.0005
+    plant: str = "rigid"
     kp: float = 0.0
     kd: float = 0.0
     base_velocity: tuple[float, float, float] = (0.2, 0.0, 0.0)
@@ -129,7 +132,7 @@ def run_closed_loop(
     robot = mpc.robot
     model, data = robot.model, robot.model.createData()
     n_steps, per_mpc, per_low = config.steps()
-    plant = ContactPlant(model, robot.foot_frames, dt=config.plant_dt, foot_radius=robot.foot_radius)
+    plant = make_plant(robot, config)
     q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
     state = plant.reset(q0, np.zeros(model.nv))
     low = LowLevelController(config.kp, config.kd)
@@ -208,7 +211,20 @@ def run_closed_loop(
     if bar is not None:
         bar.close()
     summary = summarize(mpc, log, config, fell, torque_violations, plant)
+    if hasattr(plant, "close"):
+        plant.close()
     return ClosedLoopResult(log=log, summary=summary, fell=fell)
+
+
+def make_plant(robot, config: ClosedLoopConfig):
+    """The plant named by ``config.plant``, stepping at ``config.plant_dt``."""
+    if config.plant == "rigid":
+        return ContactPlant(robot.model, robot.foot_frames, dt=config.plant_dt, foot_radius=robot.foot_radius)
+    if config.plant == "pybullet":
+        from wbmpc.pybullet_sim import PyBulletPlant
+
+        return PyBulletPlant(robot, dt=config.plant_dt)
+    raise ValueError(f"unknown plant {config.plant!r}; available: 'rigid', 'pybullet'")
 
 
 def _log_solve(log: ClosedLoopLog, plan: MPCSolution, keep_plans: bool) -> None:
@@ -277,7 +293,8 @@ def summarize(
         "robot": mpc.robot.name,
         "gait": mpc.config.gait.name,
         "solver": mpc.config.solver,
-        "compiled": False,
+        "compiled": mpc.config.compiled,
+        "plant": config.plant,
         "nodes": mpc.n_nodes,
         "duration_s": float(log.t[-1]) if log.t else 0.0,
         "requested_duration_s": config.duration,

@@ -33,6 +33,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--solver", default="fatrop", choices=["fatrop", "ipopt"], help="NLP solver")
     parser.add_argument("--nodes", type=int, default=15, help="nodes including the terminal one (default 15)")
+    parser.add_argument(
+        "--plant",
+        default="rigid",
+        choices=["rigid", "pybullet"],
+        help="rigid-contact Pinocchio plant (the paper's benchmark, default) or PyBullet",
+    )
+    parser.add_argument("--compiled", action="store_true", help="generate and compile the NLP (cached)")
     parser.add_argument("--kp", type=float, default=0.0, help="joint stiffness of the low level [N m/rad]")
     parser.add_argument("--kd", type=float, default=0.0, help="joint damping of the low level [N m s/rad]")
     parser.add_argument(
@@ -89,7 +96,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     robot = load(args.robot)
     print(robot.summary())
-    config = MPCConfig(gait=make_gait(args.gait, args.period), solver=args.solver)
+    config = MPCConfig(gait=make_gait(args.gait, args.period), solver=args.solver, compiled=args.compiled)
     start = time.perf_counter()
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=args.nodes), config)
     print(
@@ -97,7 +104,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"{mpc.ocp.n_constraints} constraints, {mpc.n_nodes} nodes"
     )
     loop = ClosedLoopConfig(
-        duration=args.duration, kp=args.kp, kd=args.kd, base_velocity=(args.speed, 0.0, 0.0)
+        duration=args.duration, kp=args.kp, kd=args.kd, base_velocity=(args.speed, 0.0, 0.0), plant=args.plant
     )
     if args.no_arm_task or not robot.has_arm:
         loop.arm_reference = None
