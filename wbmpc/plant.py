@@ -58,7 +58,41 @@ class _ContactPattern:
     data: pin.Data  # own Data: initConstraintDynamics sizes its KKT workspace to this constraint set
 
 
-class ContactPlant:
+class Plant:
+    """What the closed loop reads from any plant; subclasses set ``_model``, ``_dt`` and ``_foot_names``
+    and implement ``reset(q, v, t)`` and ``step(tau_joints, contact, external_wrench)``."""
+
+    _model: pin.Model
+    _dt: float
+    _foot_names: tuple[str, ...]
+
+    @property
+    def model(self) -> pin.Model:
+        """The Pinocchio model whose conventions the state follows."""
+        return self._model
+
+    @property
+    def nq(self) -> int:
+        """Configuration size."""
+        return self._model.nq
+
+    @property
+    def nv(self) -> int:
+        """Velocity size (joint torques have nv - 6 entries)."""
+        return self._model.nv
+
+    @property
+    def dt(self) -> float:
+        """Integration step [s]."""
+        return self._dt
+
+    @property
+    def foot_frames(self) -> tuple[str, ...]:
+        """Foot frame names, in the order of the contact flags and force arrays."""
+        return self._foot_names
+
+
+class ContactPlant(Plant):
     """Rigid-contact forward dynamics of a floating-base robot, integrated with semi-implicit Euler.
 
     **Approach.** Each step calls Pinocchio's proximal constrained-dynamics solver
@@ -193,31 +227,6 @@ class ContactPlant:
         self._foot_pos = np.zeros((n, 3))
 
     # ------------------------------------------------------------------ properties
-    @property
-    def model(self) -> pin.Model:
-        """The Pinocchio model being simulated."""
-        return self._model
-
-    @property
-    def nq(self) -> int:
-        """Configuration size."""
-        return self._model.nq
-
-    @property
-    def nv(self) -> int:
-        """Velocity size (joint torques have nv - 6 entries)."""
-        return self._model.nv
-
-    @property
-    def dt(self) -> float:
-        """Integration step [s]."""
-        return self._dt
-
-    @property
-    def foot_frames(self) -> tuple[str, ...]:
-        """Contact frame names, in the order of the contact flags."""
-        return self._foot_names
-
     @property
     def state(self) -> PlantState:
         """Copy of the current state."""

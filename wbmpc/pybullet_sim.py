@@ -57,7 +57,7 @@ import numpy as np
 import pinocchio as pin
 import pybullet as p
 
-from wbmpc.plant import PlantState
+from wbmpc.plant import Plant, PlantState
 from wbmpc.plant import fallen as _fallen
 from wbmpc.robot import Robot, RobotModelError, example_robot_data_dir
 
@@ -145,7 +145,7 @@ SceneObject = Box | Wall | Payload
 
 
 # ---------------------------------------------------------------------------------------------- plant
-class PyBulletPlant:
+class PyBulletPlant(Plant):
     """The robot in PyBullet, with the :class:`~wbmpc.plant.ContactPlant` interface.
 
     Args:
@@ -183,6 +183,7 @@ class PyBulletPlant:
         self._robot = robot
         self._model = robot.model
         self._dt = float(dt)
+        self._foot_names = tuple(robot.foot_frames)
         self._mu = float(ground_friction)
         self._client = p.connect(p.DIRECT)
         if self._client < 0:
@@ -343,31 +344,6 @@ class PyBulletPlant:
     def ground_id(self) -> int:
         """PyBullet body id of the ground plane."""
         return self._ground
-
-    @property
-    def model(self) -> pin.Model:
-        """The Pinocchio model whose conventions the state follows."""
-        return self._model
-
-    @property
-    def nq(self) -> int:
-        """Configuration size."""
-        return self._model.nq
-
-    @property
-    def nv(self) -> int:
-        """Velocity size (joint torques have nv - 6 entries)."""
-        return self._model.nv
-
-    @property
-    def dt(self) -> float:
-        """Simulation step [s]."""
-        return self._dt
-
-    @property
-    def foot_frames(self) -> tuple[str, ...]:
-        """Foot frame names, in the order of the contact arrays."""
-        return self._robot.foot_frames
 
     @property
     def time(self) -> float:
