@@ -135,8 +135,7 @@ def run_closed_loop(
     plant = make_plant(robot, config)
     q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
     state = plant.reset(q0, np.zeros(model.nv))
-    low = LowLevelController(config.kp, config.kd)
-    tau_limits = robot.joint_torque_limits
+    low = LowLevelController(config.kp, config.kd, torque_limits=robot.joint_torque_limits)
     ee_id = robot.frame_id(robot.ee_frame) if robot.has_arm else None
     log = ClosedLoopLog()
     base_cmd = np.asarray(config.base_velocity, dtype=float)
@@ -146,7 +145,6 @@ def run_closed_loop(
         pin.framesForwardKinematics(model, data, q0)
         arm_reference = arm_reference.centered_at(q0, data.oMf[ee_id].translation)
     fell = False
-    torque_violations = 0
     tau = np.zeros(robot.nj)
     ee_ref = np.full(3, np.nan)
 
@@ -154,6 +152,7 @@ def run_closed_loop(
     for step in range(n_steps):
         t = step * config.plant_dt
         q, v = state.q, state.v
+        contact = mpc.config.gait.contact(t)
         if step % per_mpc == 0:
             pin.framesForwardKinematics(model, data, q)
             commands = Commands(
@@ -189,28 +188,27 @@ def run_closed_loop(
                 fell = True
                 break
         if step % per_low == 0:
-            tau_cmd = low.torque(t, q, v)
-            torque_violations += int(np.any(np.abs(tau_cmd) > tau_limits * (1 + 1e-6)))
-            tau = np.clip(tau_cmd, -tau_limits, tau_limits)
-            pin.framesForwardKinematics(model, data, q)
+            tau = low.torque(t, q, v)  # clipped to the limits; exceedances counted by the controller
             log.t.append(t)
             log.q.append(q.copy())
             log.v.append(v.copy())
             log.tau.append(tau.copy())
-            log.tau_ff.append(low.reference(t).tau_ff)
-            log.contact.append(mpc.config.gait.contact(t))
-            log.ee_position.append(
-                data.oMf[ee_id].translation.copy() if ee_id is not None else np.full(3, np.nan)
-            )
+            log.tau_ff.append(low.last_reference.tau_ff)
+            log.contact.append(contact)
+            if ee_id is not None:  # only the end-effector frame is needed here
+                pin.forwardKinematics(model, data, q)
+                log.ee_position.append(pin.updateFramePlacement(model, data, ee_id).translation.copy())
+            else:
+                log.ee_position.append(np.full(3, np.nan))
             log.ee_reference.append(ee_ref.copy())
         try:
-            state = plant.step(tau, mpc.config.gait.contact(t))
+            state = plant.step(tau, contact)
         except FloatingPointError:
             fell = True
             break
     if bar is not None:
         bar.close()
-    summary = summarize(mpc, log, config, fell, torque_violations, plant)
+    summary = summarize(mpc, log, config, fell, low.violations, plant)
     if hasattr(plant, "close"):
         plant.close()
     return ClosedLoopResult(log=log, summary=summary, fell=fell)

@@ -38,13 +38,18 @@ class LowLevelController:
         kp: Joint stiffness [N m/rad], scalar or (nj,).
         kd: Joint damping [N m s/rad], scalar or (nj,).
         torque_limits: Symmetric limits [N m] (nj,) the motor command is clipped to (the motors' own limit).
+
+    Attributes:
+        violations: Number of commands that exceeded ``torque_limits`` before clipping.
+        last_reference: The interpolated references behind the last :meth:`torque` command.
     """
 
     def __init__(self, kp=0.0, kd=0.0, torque_limits: np.ndarray | None = None):
         self.kp, self.kd = kp, kd
         self.torque_limits = torque_limits
         self.plan: MPCSolution | None = None
-        self.clipped = 0
+        self.violations = 0
+        self.last_reference: JointCommand | None = None
 
     def update(self, plan: MPCSolution) -> None:
         """Hand over a new plan (the controller keeps interpolating the last one until then)."""
@@ -70,10 +75,9 @@ class LowLevelController:
 
     def torque(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Motor torque command (nj,) [N m] at time ``t`` for the measured joint state in ``q``, ``v``."""
-        ref = self.reference(t)
+        ref = self.last_reference = self.reference(t)
         tau = ref.tau_ff + self.kp * (ref.q_des - q[7:]) + self.kd * (ref.v_des - v[6:])
         if self.torque_limits is not None:
-            clipped = np.clip(tau, -self.torque_limits, self.torque_limits)
-            self.clipped += int(np.any(clipped != tau))
-            tau = clipped
+            self.violations += int(np.any(np.abs(tau) > self.torque_limits * (1 + 1e-6)))
+            tau = np.clip(tau, -self.torque_limits, self.torque_limits)
         return tau

@@ -200,14 +200,12 @@ class WholeBodyMPC:
     def __init__(self, robot: Robot, settings: OCPSettings | None = None, config: MPCConfig | None = None):
         self.robot = robot
         self.config = config or MPCConfig()
-        if self.config.solver not in SOLVERS:
-            raise ValueError(f"unknown solver {self.config.solver!r}; available: {list(SOLVERS)}")
         self.ocp = OCP(robot, settings)
         self.n_nodes = self.ocp.n_nodes
         self._solvers = {}
         self.previous: MPCSolution | None = None
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0}
-        self._data = robot.model.createData()
+        self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.last_inputs: dict | None = None
         self.verbose = True
@@ -294,7 +292,7 @@ class WholeBodyMPC:
         v_des = np.zeros(robot.nv)
         v_des[0:3] = R_base.T @ R_heading @ commands.base_linear_velocity
         v_des[3:6] = R_base.T @ R_heading @ commands.base_angular_velocity
-        Q_default, R_default = default_weights(robot)
+        Q_default, R_default = self._default_weights
         return {
             "q_hat": q_hat,
             "v_hat": v_hat,

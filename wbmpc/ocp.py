@@ -349,11 +349,8 @@ class OCP:
         """Expected Fatrop stage sizes: ``nx``, ``nu`` and path-constraint rows ``ng`` per node."""
         nx = [s.nx for s in self.stages]
         nu = [s.nu for s in self.stages]
-        transition_rows = [
-            s.rows["transition"].stop - s.rows["transition"].start if "transition" in s.rows else 0
-            for s in self.stages
-        ]
-        ng = [s.ng - t for s, t in zip(self.stages, transition_rows, strict=True)]
+        # Fatrop counts the transition rows (nx of the next node) as dynamics, not as path constraints.
+        ng = [s.ng - (s.nx if s.u_offset is not None else 0) for s in self.stages]
         return {"nx": nx, "nu": nu, "ng": ng}
 
     def split(self, w: np.ndarray) -> dict[str, np.ndarray]:

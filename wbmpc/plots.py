@@ -83,8 +83,12 @@ def heading_velocity(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def plot_closed_loop(log: Mapping[str, np.ndarray], robot: Robot, base_velocity_command: float | None = None,
-                     title: str | None = None) -> Figure:
+def plot_closed_loop(
+    log: Mapping[str, np.ndarray],
+    robot: Robot,
+    base_velocity_command: float | None = None,
+    title: str | None = None,
+) -> Figure:
     """Overview of a closed-loop run (8 panels sharing the time axis).
 
     Panels: base height; base roll and pitch; forward base velocity against the command; end-effector x and
@@ -184,8 +188,9 @@ def _contact_chart(ax, t: np.ndarray, contact: np.ndarray, robot: Robot) -> None
     ax.set_ylabel("stance")
 
 
-def plot_torques(log: Mapping[str, np.ndarray], robot: Robot,
-                 joints: Sequence[str] = DEFAULT_TORQUE_JOINTS) -> Figure:
+def plot_torques(
+    log: Mapping[str, np.ndarray], robot: Robot, joints: Sequence[str] = DEFAULT_TORQUE_JOINTS
+) -> Figure:
     """Applied joint torques against their limits, one panel per joint.
 
     Args:
@@ -247,8 +252,14 @@ def plot_plan(plan, robot: Robot) -> Figure:
 
     for i, foot in enumerate(robot.foot_frames):
         # Rear feet dashed: in a trot diagonal feet carry equal forces and would hide each other.
-        ax_f.stairs(forces[:, i, 2], times, color=FOOT_COLORS[i % len(FOOT_COLORS)], lw=2,
-                    ls="--" if foot.startswith("R") else "-", label=foot.removesuffix("_foot"))
+        ax_f.stairs(
+            forces[:, i, 2],
+            times,
+            color=FOOT_COLORS[i % len(FOOT_COLORS)],
+            lw=2,
+            ls="--" if foot.startswith("R") else "-",
+            label=foot.removesuffix("_foot"),
+        )
     half_weight = 0.5 * robot.mass * robot.gravity
     ax_f.axhline(half_weight, color="0.3", ls=":", lw=1, label=f"m g / 2 = {half_weight:.0f} N")
     ax_f.set_ylabel("foot force $F_z$ [N]")
@@ -276,12 +287,15 @@ def plot_plan(plan, robot: Robot) -> Figure:
     ax_grid.set_ylabel("stance per stage")
     ax_grid.set_title(
         f"time grid: {len(times)} nodes, steps {1e3 * dts[0]:.0f} → {1e3 * dts[-1]:.0f} ms, "
-        f"horizon {times[-1]:.2f} s", fontsize="medium",
+        f"horizon {times[-1]:.2f} s",
+        fontsize="medium",
     )
     ax_grid.set_xlabel("time in the horizon [s]")
     for ax in (ax_f, ax_ee, ax_base):
         ax.grid(axis="y", alpha=0.3)
     status = "converged" if plan.success else "NOT converged"
-    fig.suptitle(f"MPC plan at t = {plan.t:.3f} s: {status}, {plan.iterations} iterations, "
-                 f"{1e3 * plan.solve_time:.0f} ms")
+    fig.suptitle(
+        f"MPC plan at t = {plan.t:.3f} s: {status}, {plan.iterations} iterations, "
+        f"{1e3 * plan.solve_time:.0f} ms"
+    )
     return fig

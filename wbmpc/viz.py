@@ -280,8 +280,13 @@ class Viewer:
         ViewerUnavailableError: the meshcat server cannot be started or reached.
     """
 
-    def __init__(self, robot: Robot, zmq_url: str | None = None,
-                 mesh_resolution: float | None = DEFAULT_MESH_RESOLUTION, timeout: float = 10.0):
+    def __init__(
+        self,
+        robot: Robot,
+        zmq_url: str | None = None,
+        mesh_resolution: float | None = DEFAULT_MESH_RESOLUTION,
+        timeout: float = 10.0,
+    ):
         self.robot = robot
         self.model, self.geometry = visual_model(robot)
         self.data = self.model.createData()
@@ -360,8 +365,15 @@ class Viewer:
         frames = self.robot.contact_frames
         return np.array([self.data.oMf[self.model.getFrameId(f)].translation for f in frames])
 
-    def draw_forces(self, q: np.ndarray, forces: np.ndarray, contact: np.ndarray | None = None,
-                    foot_scale: float = 1e-3, arm_scale: float = 2e-3, name: str = "forces") -> None:
+    def draw_forces(
+        self,
+        q: np.ndarray,
+        forces: np.ndarray,
+        contact: np.ndarray | None = None,
+        foot_scale: float = 1e-3,
+        arm_scale: float = 2e-3,
+        name: str = "forces",
+    ) -> None:
         """Arrows for the contact forces acting on the robot at the contact frames.
 
         Args:
@@ -383,8 +395,14 @@ class Viewer:
             scale = foot_scale if foot else arm_scale
             self.meshcat[path].set_transform(_arrow_transform(positions[i], scale * force))
 
-    def draw_path(self, name: str, points: np.ndarray, color: int | str = 0x1F77B4, markers: bool = True,
-                  marker_size: float = 0.012) -> None:
+    def draw_path(
+        self,
+        name: str,
+        points: np.ndarray,
+        color: int | str = 0x1F77B4,
+        markers: bool = True,
+        marker_size: float = 0.012,
+    ) -> None:
         """A polyline through ``points`` (n, 3) [m], with a dot at every point if ``markers``.
 
         The node is ``paths/<name>`` unless ``name`` already contains a ``/``.
@@ -441,13 +459,25 @@ class Viewer:
             feet.append([self.data.oMf[i].translation.copy() for i in ids])
             if ee is not None:
                 ee_path.append(self.data.oMf[ee].translation.copy())
-        return {"feet": np.array(feet), "ee": np.array(ee_path) if ee is not None else None,
-                "base": np.asarray(qs)[:, :3].copy()}
+        return {
+            "feet": np.array(feet),
+            "ee": np.array(ee_path) if ee is not None else None,
+            "base": np.asarray(qs)[:, :3].copy(),
+        }
 
     # --- replays -----------------------------------------------------------------------------------------
-    def animation(self, qs: np.ndarray, times: np.ndarray, forces: np.ndarray | None = None,
-                  contact: np.ndarray | None = None, fps: float = 30.0, play: bool = True,
-                  repetitions: int = 1, foot_scale: float = 1e-3, arm_scale: float = 2e-3) -> Animation:
+    def animation(
+        self,
+        qs: np.ndarray,
+        times: np.ndarray,
+        forces: np.ndarray | None = None,
+        contact: np.ndarray | None = None,
+        fps: float = 30.0,
+        play: bool = True,
+        repetitions: int = 1,
+        foot_scale: float = 1e-3,
+        arm_scale: float = 2e-3,
+    ) -> Animation:
         """Send a replay to the scene (the browser plays it; :meth:`export_html` keeps it).
 
         Configurations are interpolated on the Lie group at ``fps`` frames per second of simulated time.

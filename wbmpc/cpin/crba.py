@@ -80,9 +80,7 @@ def inertia_to_parent(Y: Inertia, R: ca.SX, p: ca.SX) -> Inertia:
     # A constant for revolute joints (fixed p); prismatic joints move p with q.
     shift = -Y.mass * (ca.mtimes(p, p.T) - ca.dot(p, p) * ca.SX.eye(3))
     ph = 2 * ca.dot(p, h_r)
-    cross_terms = symmetric(
-        [(ph if i == j else 0) - h_r[i] * p[j] - p[i] * h_r[j] for i, j in _UPPER]
-    )
+    cross_terms = symmetric([(ph if i == j else 0) - h_r[i] * p[j] - p[i] * h_r[j] for i, j in _UPPER])
     return Inertia(Y.mass, h_r + Y.mass * p, I_r + shift + cross_terms)
 
 
