@@ -31,5 +31,14 @@ def fake_plan(robot, t0=0.0, ee_force_z=0.0):
     forces = np.zeros((n_nodes - 1, 5, 3))
     forces[:, :4, 2] = 300.0 * contact.T
     forces[:, 4, 2] = ee_force_z
-    return SimpleNamespace(t=t0, dts=dts, node_times=t0 + np.concatenate([[0.0], np.cumsum(dts)]), q=q,
-                           forces=forces, contact=contact, success=True, iterations=6, solve_time=0.17)
+    return SimpleNamespace(
+        t=t0,
+        dts=dts,
+        node_times=t0 + np.concatenate([[0.0], np.cumsum(dts)]),
+        q=q,
+        forces=forces,
+        contact=contact,
+        success=True,
+        iterations=6,
+        solve_time=0.17,
+    )

@@ -69,8 +69,11 @@ def synthetic_robot(seed=0):
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
     root = add(0, pin.JointModelFreeFlyer(), "root")
-    a = add(add(add(root, pin.JointModelRY(), "a1"), pin.JointModelPZ(), "a2"),
-            pin.JointModelRevoluteUnaligned(axis), "a3")
+    a = add(
+        add(add(root, pin.JointModelRY(), "a1"), pin.JointModelPZ(), "a2"),
+        pin.JointModelRevoluteUnaligned(axis),
+        "a3",
+    )
     b = add(root, pin.JointModelPX(), "b1")
     b_tip = add(add(b, pin.JointModelPrismaticUnaligned(axis[::-1].copy()), "b2"), pin.JointModelRX(), "b3")
     c = add(b, pin.JointModelRZ(), "c1")  # second child of b1

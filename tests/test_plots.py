@@ -45,13 +45,19 @@ def log(robot):
     solve_t = np.arange(0, t[-1], 1 / 80)
     n = solve_t.size
     return {
-        "t": t, "q": q, "v": v,
+        "t": t,
+        "q": q,
+        "v": v,
         "tau": rng.normal(scale=20.0, size=(t.size, robot.nj)),
         "tau_ff": rng.normal(scale=20.0, size=(t.size, robot.nj)),
         "contact": np.column_stack([t < 0.2, t >= 0.2, t >= 0.2, t < 0.2]),
-        "ee_position": ee, "ee_reference": ref,
-        "solve_t": solve_t, "solve_time": 0.15 + 0.02 * rng.random(n),
-        "iterations": rng.integers(3, 8, n), "success": np.arange(n) != 5, "fallback": np.arange(n) == 5,
+        "ee_position": ee,
+        "ee_reference": ref,
+        "solve_t": solve_t,
+        "solve_time": 0.15 + 0.02 * rng.random(n),
+        "iterations": rng.integers(3, 8, n),
+        "success": np.arange(n) != 5,
+        "fallback": np.arange(n) == 5,
     }
 
 

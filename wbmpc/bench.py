@@ -23,20 +23,36 @@ from wbmpc.quick import quick_mode
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
-def run_case(robot, solver: str, compiled: bool, nodes: int, steps: int, warmup: int, progress: bool) -> dict:
-    """One closed-loop run; statistics over the solves after the warm-up."""
+def run_case(
+    robot,
+    solver: str,
+    compiled: bool,
+    nodes: int,
+    steps: int,
+    warmup: int,
+    progress: bool,
+    formulation: str = "inverse_dynamics",
+    kp: float = 0.0,
+    kd: float = 0.0,
+) -> dict:
+    """One closed-loop run; statistics over the solves after the warm-up.
+
+    Args:
+        kp, kd: Low-level joint PD gains [N m/rad], [N m s/rad] (0: pure feed-forward torques).
+    """
     from wbmpc.closed_loop import ClosedLoopConfig, machine_description, run_closed_loop
     from wbmpc.gait import make_gait
     from wbmpc.mpc import MPCConfig, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
 
     config = MPCConfig(gait=make_gait("trot"), solver=solver, compiled=compiled)
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes), config)
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes, formulation=formulation), config)
+    mpc.verbose = progress
     start = time.perf_counter()
     mpc._solver(cold=True)  # build (or load from the cache) before timing anything
     mpc._solver(cold=False)
     setup_s = time.perf_counter() - start
-    loop = ClosedLoopConfig(duration=(steps + warmup) / 80.0)
+    loop = ClosedLoopConfig(duration=(steps + warmup) / 80.0, kp=kp, kd=kd)
     result = run_closed_loop(mpc, loop, progress=progress)
     log = result.log
     ms = 1e3 * np.asarray(log.solve_time[warmup:])
@@ -54,6 +70,8 @@ def run_case(robot, solver: str, compiled: bool, nodes: int, steps: int, warmup:
         "compiled": compiled,
         "nodes": nodes,
         "steps": int(ms.size),
+        "kp": kp,
+        "kd": kd,
         "warmup_steps": warmup,
         "mean_ms": float(ms.mean()),
         "std_ms": float(ms.std()),
@@ -76,6 +94,8 @@ def run_case(robot, solver: str, compiled: bool, nodes: int, steps: int, warmup:
             )
         },
         "fell": result.fell,
+        "max_tilt_rad": result.summary["max_tilt_rad"],
+        "ee_rms_m": result.summary.get("ee_rms_m"),
         "build_s": build.build_s if build else None,
         "build_peak_mb": build.build_peak_mb if build else None,
         "c_megabytes": build.c_bytes / 1e6 if build else None,

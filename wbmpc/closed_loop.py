@@ -1,22 +1,37 @@
-"""Closed-loop simulation: MPC at 80 Hz, joint interpolation + PD at 500 Hz, a rigid-contact plant at 2 kHz.
+"""Closed-loop simulation: MPC at 80 Hz, joint interpolation + PD at 500 Hz, a plant at 1-2 kHz.
 
-This is the paper's benchmark setting: the plant is Pinocchio's forward dynamics with the scheduled feet in
-rigid contact (:class:`wbmpc.plant.ContactPlant`), no physics engine. The simulated time waits for each
-solve (no computation delay); the measured wall-clock solve times are logged.
+Two plants: Pinocchio's forward dynamics with the scheduled feet in rigid contact
+(:class:`wbmpc.plant.ContactPlant`, the paper's benchmark setting) or PyBullet
+(:class:`wbmpc.pybullet_sim.PyBulletPlant`: contacts, friction, scene objects, disturbances).
+
+Timing: without computation delay (``delay="off"``) the simulated time waits for each solve, as in the
+paper's first simulations. With delay (``"measured"``: the solve's wall time, or a fixed number of seconds)
+the simulator keeps running on the previous plan while the solver works: the new plan reaches the low
+level ``delay`` later (rounded up to plant steps), and the next solve starts at the first MPC tick after
+that (a real-time loop cannot start a solve before the previous one returns).
+
+The controller sees the state through :class:`wbmpc.sensing.StateSensor` (ground truth by default;
+optional noise and the paper's 50 Hz joint-velocity filter). Every run keeps a log that converts to the
+columnar :class:`wbmpc.logs.RunLog` (``result.run_log()``, ``result.save(path)``).
 """
 
 from __future__ import annotations
 
+import math
 import platform
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
 
 from wbmpc.arm_task import ArmReference, heading_frame, velocity_command
+from wbmpc.disturbances import Disturbance, Kick, Push
+from wbmpc.logs import RunLog, save_log
 from wbmpc.low_level import LowLevelController
 from wbmpc.mpc import Commands, MPCSolution, WholeBodyMPC
 from wbmpc.plant import ContactPlant, fallen
+from wbmpc.sensing import SensorNoise, StateSensor
 from wbmpc.time_grid import node_times
 
 
@@ -41,6 +56,15 @@ class ClosedLoopConfig:
         ee_velocity: Constant end-effector velocity command [m/s] used when there is no arm reference.
         ee_force: Commanded end-effector force [N], world.
         max_tilt: Roll/pitch [rad] beyond which the run counts as a fall.
+        delay: Computation delay: ``"off"``, ``"measured"`` (each solve's wall time) or seconds.
+        sensor_noise: Measurement noise (``None``: ground truth).
+        velocity_cutoff_hz: Joint-velocity low-pass cut-off [Hz] (paper: 50; ``None``: unfiltered).
+        scene: PyBullet scene objects (:class:`~wbmpc.pybullet_sim.Box`, ``Wall``, ``Payload``).
+        disturbances: :class:`~wbmpc.disturbances.Kick` and ``Push`` events (PyBullet plant).
+        command_schedule: ``f(t) -> dict`` overriding commands over time: keys ``base_velocity``,
+            ``base_yaw_rate``, ``ee_velocity``, ``ee_force`` (values as the fields of the same names).
+        ground_friction: Ground friction coefficient of the PyBullet plant.
+        arm_gains: ``(kp, kd)`` of the arm joints if different from the legs' (e.g. a compliant arm).
     """
 
     duration: float = 10.0
@@ -58,6 +82,29 @@ class ClosedLoopConfig:
     ee_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ee_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_tilt: float = 1.0
+    delay: str | float = "off"
+    sensor_noise: SensorNoise | None = None
+    velocity_cutoff_hz: float | None = None
+    scene: Sequence = ()
+    disturbances: Sequence[Disturbance] = ()
+    command_schedule: Callable[[float], dict] | None = None
+    ground_friction: float = 0.8
+    arm_gains: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        if not (
+            self.delay in ("off", "measured") or (isinstance(self.delay, int | float) and self.delay >= 0)
+        ):
+            raise ValueError(f"delay must be 'off', 'measured' or seconds >= 0, got {self.delay!r}")
+        if self.plant not in ("rigid", "pybullet"):
+            raise ValueError(f"unknown plant {self.plant!r}; available: 'rigid', 'pybullet'")
+        if self.plant == "rigid" and (self.scene or self.disturbances):
+            raise ValueError(
+                "scene objects and disturbances need plant='pybullet' (the rigid plant has none)"
+            )
+        for d in self.disturbances:
+            if not isinstance(d, Kick | Push):
+                raise ValueError(f"unknown disturbance {d!r}; use wbmpc.disturbances.Kick or Push")
 
     def steps(self) -> tuple[int, int, int]:
         """Total plant steps, plant steps per MPC update and per low-level update."""
@@ -96,10 +143,49 @@ class ClosedLoopLog:
     ee_command: list = field(default_factory=list)
     timings: list = field(default_factory=list)
     plans: list = field(default_factory=list)
+    q_meas: list = field(default_factory=list)
+    v_meas: list = field(default_factory=list)
+    contact_sim: list = field(default_factory=list)
+    foot_forces: list = field(default_factory=list)
+    ee_force_sim: list = field(default_factory=list)
+    base_velocity_cmd: list = field(default_factory=list)
+    ee_force_cmd: list = field(default_factory=list)
+    apply_t: list = field(default_factory=list)
+    plan_q: list = field(default_factory=list)
+    plan_v: list = field(default_factory=list)
+    plan_tau: list = field(default_factory=list)
+    plan_forces: list = field(default_factory=list)
+    scene_positions: list = field(default_factory=list)
+
+    SOLVE_COLUMNS = (
+        "solve_t",
+        "apply_t",
+        "solve_time",
+        "iterations",
+        "success",
+        "fallback",
+        "violation",
+        "status",
+        "ee_command",
+        "plan_q",
+        "plan_v",
+        "plan_tau",
+        "plan_forces",
+    )
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every series as a numpy array (plans and per-solve timing dicts excluded)."""
         return {k: np.asarray(v) for k, v in self.__dict__.items() if k not in ("plans", "timings")}
+
+    def run_log(self, meta: dict | None = None) -> RunLog:
+        """The columnar log (:class:`wbmpc.logs.RunLog`): signals at the low-level rate, one row per solve."""
+        arrays = self.arrays()
+        n_solves = len(self.solve_t)
+        solves = {k: arrays[k] for k in self.SOLVE_COLUMNS if len(arrays[k]) == n_solves}
+        solves["status"] = np.asarray([str(x) for x in self.status], dtype=str)
+        skip = set(self.SOLVE_COLUMNS)
+        signals = {k: v for k, v in arrays.items() if k not in skip and len(v) == len(self.t)}
+        return RunLog(signals=signals, solves=solves, meta=dict(meta or {}))
 
 
 @dataclass
@@ -107,6 +193,14 @@ class ClosedLoopResult:
     log: ClosedLoopLog
     summary: dict
     fell: bool
+
+    def run_log(self) -> RunLog:
+        """The columnar log with the summary as metadata."""
+        return self.log.run_log({"summary": self.summary})
+
+    def save(self, path) -> str:
+        """Write the columnar log (``.npz``, see :mod:`wbmpc.logs`); returns the path."""
+        return str(save_log(self.run_log(), path))
 
 
 def run_closed_loop(
@@ -133,54 +227,76 @@ def run_closed_loop(
     model, data = robot.model, robot.model.createData()
     n_steps, per_mpc, per_low = config.steps()
     plant = make_plant(robot, config)
+    pybullet = config.plant == "pybullet"
     q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
     state = plant.reset(q0, np.zeros(model.nv))
-    low = LowLevelController(config.kp, config.kd, torque_limits=robot.joint_torque_limits)
+    kp, kd = _joint_gains(robot, config)
+    low = LowLevelController(kp, kd, torque_limits=robot.joint_torque_limits)
+    sensor = StateSensor(model, per_low * config.plant_dt, config.sensor_noise, config.velocity_cutoff_hz)
     ee_id = robot.frame_id(robot.ee_frame) if robot.has_arm else None
     log = ClosedLoopLog()
-    base_cmd = np.asarray(config.base_velocity, dtype=float)
     mpc.reset()
     arm_reference = config.arm_reference
     if ee_id is not None and arm_reference is not None and arm_reference.center is None:
         pin.framesForwardKinematics(model, data, q0)
         arm_reference = arm_reference.centered_at(q0, data.oMf[ee_id].translation)
+    kicks = {round(d.time / config.plant_dt): d for d in config.disturbances if isinstance(d, Kick)}
+    pushes = [d for d in config.disturbances if isinstance(d, Push)]
     fell = False
     tau = np.zeros(robot.nj)
     ee_ref = np.full(3, np.nan)
+    q_meas, v_meas = sensor.measure(state.q, state.v)
+    pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
+    busy_until = 0  # plant step before which no new solve can start (the solver is working)
+    cmd = _commands(config, 0.0)
+    scene_names = plant.body_names if pybullet else []
 
     bar = _progress(n_steps // per_mpc, progress)
     for step in range(n_steps):
         t = step * config.plant_dt
         q, v = state.q, state.v
         contact = mpc.config.gait.contact(t)
-        if step % per_mpc == 0:
-            pin.framesForwardKinematics(model, data, q)
+        if pending is not None and step >= pending[0]:
+            low.update(pending[1])
+            pending = None
+        if step % per_mpc == 0 and step >= busy_until:
+            if sensor.is_ground_truth:
+                q_meas, v_meas = q.copy(), v.copy()
+            cmd = _commands(config, t)
             commands = Commands(
-                base_linear_velocity=base_cmd,
-                base_angular_velocity=np.array([0, 0, config.base_yaw_rate]),
-                ee_force=np.asarray(config.ee_force, dtype=float),
+                base_linear_velocity=cmd["base_velocity"],
+                base_angular_velocity=np.array([0, 0, cmd["base_yaw_rate"]]),
+                ee_force=cmd["ee_force"],
             )
             if ee_id is not None:
+                pin.framesForwardKinematics(model, data, q_meas)
                 ee_pos = data.oMf[ee_id].translation.copy()
                 if arm_reference is not None:
-                    R_heading, _ = heading_frame(q)
+                    R_heading, _ = heading_frame(q_meas)
                     stage_times = node_times(mpc.time_steps(), t)[:-1] if config.arm_preview else None
                     ee_cmd, ee_ref = velocity_command(
                         arm_reference,
-                        q,
+                        q_meas,
                         ee_pos,
                         t,
-                        R_heading @ base_cmd,
+                        R_heading @ cmd["base_velocity"],
                         kp=config.arm_kp,
                         node_times=stage_times,
                     )
                 else:
-                    ee_cmd = np.asarray(config.ee_velocity, dtype=float)
+                    ee_cmd = cmd["ee_velocity"]
                 commands.ee_velocity = ee_cmd
                 log.ee_command.append(ee_cmd if ee_cmd.ndim == 1 else ee_cmd[:, 0])
-            plan = mpc.solve(q, v, t, commands)
-            _log_solve(log, plan, keep_plans)
-            low.update(plan)
+            plan = mpc.solve(q_meas, v_meas, t, commands)
+            delay = _delay_steps(config, plan.solve_time)
+            if delay == 0 or low.plan is None:  # no delay, or nothing to hold yet (the robot starts at rest)
+                low.update(plan)
+                apply_step = step
+            else:
+                apply_step = step + delay
+                pending = (apply_step, plan)
+            busy_until = apply_step
+            _log_solve(log, plan, keep_plans, apply_step * config.plant_dt)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(iters=plan.iterations, ms=f"{1e3 * plan.solve_time:.0f}")
@@ -188,45 +304,120 @@ def run_closed_loop(
                 fell = True
                 break
         if step % per_low == 0:
-            tau = low.torque(t, q, v)  # clipped to the limits; exceedances counted by the controller
+            q_meas, v_meas = sensor.measure(q, v)  # ground truth: plain copies
+            tau = low.torque(t, q_meas, v_meas)
             log.t.append(t)
             log.q.append(q.copy())
             log.v.append(v.copy())
+            log.q_meas.append(q_meas.copy())
+            log.v_meas.append(v_meas.copy())
             log.tau.append(tau.copy())
             log.tau_ff.append(low.last_reference.tau_ff)
             log.contact.append(contact)
+            log.contact_sim.append(plant.foot_contacts() if pybullet else np.asarray(contact, bool))
+            log.foot_forces.append(plant.contact_forces() if pybullet else plant.last_contact_forces)
+            log.base_velocity_cmd.append(cmd["base_velocity"])
+            log.ee_force_cmd.append(cmd["ee_force"])
             if ee_id is not None:  # only the end-effector frame is needed here
                 pin.forwardKinematics(model, data, q)
                 log.ee_position.append(pin.updateFramePlacement(model, data, ee_id).translation.copy())
+                log.ee_force_sim.append(plant.ee_contact_force() if pybullet else np.zeros(3))
             else:
                 log.ee_position.append(np.full(3, np.nan))
+                log.ee_force_sim.append(np.zeros(3))
             log.ee_reference.append(ee_ref.copy())
+            if scene_names:
+                log.scene_positions.append(np.array([plant.body_pose(name)[0] for name in scene_names]))
         try:
-            state = plant.step(tau, contact)
+            if step in kicks:
+                state = plant.apply_base_velocity_kick(np.asarray(kicks[step].delta_v, dtype=float))
+            wrench, ee_force = _push_forces(pushes, t)
+            if pybullet:
+                state = plant.step(tau, contact, external_wrench=wrench, ee_force=ee_force)
+            else:
+                state = plant.step(tau, contact)
         except FloatingPointError:
             fell = True
             break
     if bar is not None:
         bar.close()
     summary = summarize(mpc, log, config, fell, low.violations, plant)
+    summary["scene_bodies"] = list(scene_names)
     if hasattr(plant, "close"):
         plant.close()
     return ClosedLoopResult(log=log, summary=summary, fell=fell)
 
 
+def _commands(config: ClosedLoopConfig, t: float) -> dict:
+    """Commands at time ``t``: the config's constants overridden by its schedule."""
+    cmd = {
+        "base_velocity": config.base_velocity,
+        "base_yaw_rate": config.base_yaw_rate,
+        "ee_velocity": config.ee_velocity,
+        "ee_force": config.ee_force,
+    }
+    if config.command_schedule is not None:
+        override = config.command_schedule(t) or {}
+        unknown = set(override) - set(cmd)
+        if unknown:
+            raise ValueError(
+                f"command_schedule returned unknown keys {sorted(unknown)}; known: {sorted(cmd)}"
+            )
+        cmd |= override
+    out = {k: np.asarray(v, dtype=float) for k, v in cmd.items()}
+    out["base_yaw_rate"] = float(out["base_yaw_rate"])
+    return out
+
+
+def _delay_steps(config: ClosedLoopConfig, solve_time: float) -> int:
+    """Plant steps between a solve's measurement and its plan reaching the low level."""
+    if config.delay == "off":
+        return 0
+    seconds = solve_time if config.delay == "measured" else float(config.delay)
+    return int(math.ceil(seconds / config.plant_dt - 1e-9))
+
+
+def _push_forces(pushes: list[Push], t: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    wrench = ee = None
+    for push in pushes:
+        if push.active(t):
+            if push.target == "base":
+                wrench = push.wrench() if wrench is None else wrench + push.wrench()
+            else:
+                f = np.asarray(push.force, dtype=float)
+                ee = f if ee is None else ee + f
+    return wrench, ee
+
+
+def _joint_gains(robot, config: ClosedLoopConfig) -> tuple[np.ndarray, np.ndarray]:
+    kp = np.full(robot.nj, float(config.kp))
+    kd = np.full(robot.nj, float(config.kd))
+    if config.arm_gains is not None and robot.has_arm:
+        arm = [robot.joint_names.index(name) for name in robot.arm_joint_names]
+        kp[arm], kd[arm] = config.arm_gains
+    return kp, kd
+
+
 def make_plant(robot, config: ClosedLoopConfig):
-    """The plant named by ``config.plant``, stepping at ``config.plant_dt``."""
+    """The plant named by ``config.plant``, stepping at ``config.plant_dt`` (with the config's scene)."""
     if config.plant == "rigid":
         return ContactPlant(robot.model, robot.foot_frames, dt=config.plant_dt, foot_radius=robot.foot_radius)
     if config.plant == "pybullet":
         from wbmpc.pybullet_sim import PyBulletPlant
 
-        return PyBulletPlant(robot, dt=config.plant_dt)
+        return PyBulletPlant(
+            robot, dt=config.plant_dt, ground_friction=config.ground_friction, scene=config.scene
+        )
     raise ValueError(f"unknown plant {config.plant!r}; available: 'rigid', 'pybullet'")
 
 
-def _log_solve(log: ClosedLoopLog, plan: MPCSolution, keep_plans: bool) -> None:
+def _log_solve(log: ClosedLoopLog, plan: MPCSolution, keep_plans: bool, apply_t: float) -> None:
     log.solve_t.append(plan.t)
+    log.apply_t.append(apply_t)
+    log.plan_q.append(plan.q[:2].copy())
+    log.plan_v.append(plan.v[:2].copy())
+    log.plan_tau.append(plan.tau[0].copy())
+    log.plan_forces.append(plan.forces[0].copy())
     log.solve_time.append(plan.solve_time)
     log.iterations.append(plan.iterations)
     log.success.append(plan.success)
@@ -322,7 +513,15 @@ def summarize(
         "distance_travelled_m": float(np.linalg.norm(q[-1, :2] - q[0, :2])) if len(q) else None,
         "torque_violations": int(torque_violations),
         "fell": bool(fell),
-        "low_level": {"kp": config.kp, "kd": config.kd, "rate_hz": config.low_level_rate},
+        "low_level": {
+            "kp": config.kp,
+            "kd": config.kd,
+            "arm_gains": list(config.arm_gains) if config.arm_gains is not None else None,
+            "rate_hz": config.low_level_rate,
+        },
+        "delay": config.delay,
+        "sensor_noise": None if config.sensor_noise is None else vars(config.sensor_noise),
+        "velocity_cutoff_hz": config.velocity_cutoff_hz,
         "mpc_rate_hz": config.mpc_rate,
         "plant_dt_s": config.plant_dt,
         "machine": machine_description(),

@@ -53,7 +53,7 @@ def stage_functions(ocp: OCP, kind: str, k: int) -> dict[str, ca.Function]:
     p = ocp.params.symbols
     p_vec = ocp.params.vector
     has_input = kind != "terminal"
-    st = form.stage(f"{kind}", p["q_hat"], has_input=has_input, has_torque=kind in ("initial", "torque"))
+    st = form.stage(f"{kind}", p["q_hat"], has_input=has_input, torque_limited=kind in ("initial", "torque"))
     sizes = ocp.stage_parameter_sizes()
     s = ca.SX.sym("s", sum(sizes.values()))
     sp, i = {}, 0

@@ -42,6 +42,7 @@ def layout(mpc: WholeBodyMPC, solver: ca.Function) -> dict:
         {"name": name, "offset": start, "rows": rows, "cols": cols, "order": "column-major"}
         for name, (start, (rows, cols)) in ocp.params.blocks.items()
     ]
+    form = ocp.formulation
     stages = []
     for s in ocp.stages:
         entry = {
@@ -49,17 +50,16 @@ def layout(mpc: WholeBodyMPC, solver: ca.Function) -> dict:
             "x_offset": s.x_offset,
             "nx": s.nx,
             "nu": s.nu,
-            "x": {"dq": [0, ocp.nv], "v": [ocp.nv, 2 * ocp.nv]},
+            "x": _ranges(form.state_blocks()),
         }
         if s.u_offset is not None:
             entry["u_offset"] = s.u_offset
-            entry["u"] = {"a": [0, ocp.nv], "F": [ocp.nv, ocp.nv + ocp.nf]}
-            if s.has_torque:
-                entry["u"]["tau"] = [ocp.nv + ocp.nf, s.nu]
+            entry["u"] = _ranges(form.input_blocks(s.has_torque))
         stages.append(entry)
     return {
         "solver": SOLVER_NAME,
         "robot": mpc.robot.name,
+        "formulation": ocp.settings.formulation,
         "nodes": ocp.n_nodes,
         "n_tau_nodes": ocp.settings.n_tau_nodes,
         "n_variables": ocp.n_variables,
@@ -75,6 +75,15 @@ def layout(mpc: WholeBodyMPC, solver: ca.Function) -> dict:
         "ubg": [float(v) if np.isfinite(v) else None for v in ocp.ubg],
         "units": "SI: m, rad, s, N, N m; forces on the robot in world axes",
     }
+
+
+def _ranges(blocks: list[tuple[str, int]]) -> dict[str, list[int]]:
+    """``{block: [start, stop]}`` offsets within a stage's state or input vector."""
+    out, i = {}, 0
+    for name, n in blocks:
+        out[name] = [i, i + n]
+        i += n
+    return out
 
 
 def export(mpc: WholeBodyMPC, directory: Path, warm: bool = True, flags: tuple[str, ...] = ("-O1",)) -> Path:

@@ -157,7 +157,8 @@ class MPCSolution:
         dts: Time steps [s] (N-1,).
         q: Configurations (N, nq); v: velocities (N, nv); a: accelerations (N-1, nv).
         forces: Contact forces on the robot (N-1, n_c, 3) [N], world axes; swing feet already zeroed.
-        tau: Joint torques (n_tau, nj) [N m].
+        tau: Joint torques (n_tau, nj) [N m] (all N-1 stages for forward dynamics; the RNEA torques of the
+            plan for the centroidal formulations).
         contact: Contact flags (4, N-1).
         success: Whether the solver converged. iterations, solve_time [s], status: solver report.
         constraint_violation: Max bound violation of the constraints at the returned point.
@@ -328,13 +329,13 @@ class WholeBodyMPC:
                 f = np.vstack([f, params["ee_force"]])
             forces.append(f)
             taus.append(tau)
-        n_tau = self.ocp.settings.n_tau_nodes
         return self.ocp.join(
+            q_hat,
             np.zeros((N, nv)),
             np.tile(v_hat, (N, 1)),
             np.zeros((N - 1, nv)),
             np.array(forces),
-            np.array(taus[:n_tau]),
+            np.array(taus),
         )
 
     def shifted_guess(self, previous: MPCSolution, q_hat: np.ndarray, t: float, params: dict) -> np.ndarray:
@@ -357,12 +358,13 @@ class WholeBodyMPC:
         v = _interp_rows(t_new, t_old, previous.v)
         v[0] = params["v_hat"]
         a = _interp_rows(t_new[:-1], t_old[:-1], previous.a)
-        tau = _interp_rows(t_new[: len(previous.tau)], t_old[: len(previous.tau)], previous.tau)
+        # Torques on every stage (held after the last planned one): formulations take what they use.
+        tau = _interp_rows(t_new[:-1], t_old[: len(previous.tau)], previous.tau)
         forces = np.zeros((N - 1, len(self.robot.contact_frames), 3))
         forces[:, : self.robot.n_feet, 2] = params["force_des"].T
         if self.robot.has_arm:
             forces[:, -1] = params["ee_force"]
-        return self.ocp.join(dq, v, a, forces, tau)
+        return self.ocp.join(q_hat, dq, v, a, forces, tau)
 
     # --- solve ----------------------------------------------------------------------------------------------
     def solve(
@@ -441,24 +443,23 @@ class WholeBodyMPC:
                 return replace(self.previous, fallback=True, **report)
             if w is None:
                 w = x0
-        solution = self._solution(w, lam_g, q_hat, t, params, report)
+        solution = self._solution(w, lam_g, q_hat, t, p, params, report)
         self.previous = solution
         return solution
 
-    def _solution(self, w, lam_g, q_hat, t, params, report: dict) -> MPCSolution:
-        parts = self.ocp.split(w)
+    def _solution(self, w, lam_g, q_hat, t, p, params, report: dict) -> MPCSolution:
+        plan = {key: np.array(value).T for key, value in self.ocp.plan_function(w=w, p=p).items()}
         model = self.robot.model
-        q = np.array([pin.integrate(model, q_hat, d) for d in parts["dq"]])
-        forces = parts["forces"].copy()
-        forces[:, : self.robot.n_feet] *= params["contact"].T[:, :, None]
+        q = np.array([pin.integrate(model, q_hat, d) for d in plan["dq"]])
+        n_c = len(self.robot.contact_frames)
         return MPCSolution(
             t=t,
             dts=self.time_steps(),
             q=q,
-            v=parts["v"],
-            a=parts["a"],
-            forces=forces,
-            tau=parts["tau"],
+            v=plan["v"],
+            a=plan["a"],
+            forces=plan["forces"].reshape(-1, n_c, 3),
+            tau=plan["tau"],
             contact=params["contact"] > 0.5,
             w=w,
             lam_g=lam_g,

@@ -32,9 +32,10 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
+import pinocchio as pin
 
 from wbmpc import cpin
-from wbmpc.formulations import InverseDynamics
+from wbmpc.formulations import FORMULATIONS, make_formulation
 from wbmpc.robot import Robot
 from wbmpc.time_grid import symbolic_geometric_time_steps
 
@@ -46,7 +47,7 @@ class OCPSettings:
     Attributes:
         n_nodes: Number of nodes including the terminal one (paper: 15).
         n_tau_nodes: Nodes ``k < n_tau_nodes`` carry joint torques and torque limits (paper: k <= 2).
-        formulation: Dynamics formulation name.
+        formulation: Dynamics formulation name, one of :data:`wbmpc.formulations.FORMULATIONS`.
     """
 
     n_nodes: int = 15
@@ -60,6 +61,8 @@ class OCPSettings:
             raise ValueError(
                 f"n_tau_nodes must be in [1, n_nodes - 1 = {self.n_nodes - 1}], got {self.n_tau_nodes}"
             )
+        if self.formulation not in FORMULATIONS:
+            raise ValueError(f"unknown formulation {self.formulation!r}; available: {list(FORMULATIONS)}")
 
 
 class ParameterLayout:
@@ -141,11 +144,7 @@ class OCP:
         self.robot = robot
         self.settings = settings or OCPSettings()
         self.smodel = cpin.SymbolicModel(robot.model)
-        if self.settings.formulation != "inverse_dynamics":
-            raise ValueError(
-                f"unknown formulation {self.settings.formulation!r}; available: ['inverse_dynamics']"
-            )
-        self.formulation = InverseDynamics(self.smodel, len(robot.contact_frames))
+        self.formulation = make_formulation(self.settings.formulation, self.smodel, robot.contact_frames)
         self.n_feet = robot.n_feet
         self.nv, self.nq, self.nj = robot.nv, robot.nq, robot.nj
         self.nf = 3 * len(robot.contact_frames)
@@ -157,8 +156,9 @@ class OCP:
         return self.settings.n_nodes
 
     @property
-    def nu_max(self) -> int:
-        return self.formulation.nu(True)
+    def n_weights_input(self) -> int:
+        """Size of ``R``: weights of ``[a, F, tau_j]`` whatever the formulation's inputs are."""
+        return self.nv + self.nf + self.nj
 
     def _declare_parameters(self) -> ParameterLayout:
         n_stages = self.n_nodes - 1
@@ -176,7 +176,7 @@ class OCP:
         P.add("ee_force", 3)  # commanded force on the robot at the end effector, world axes [N]
         P.add("mu", 1)  # friction coefficient
         P.add("Q", 2 * self.nv)
-        P.add("R", self.nu_max)
+        P.add("R", self.n_weights_input)
         return P
 
     # --- construction -------------------------------------------------------------------------------------
@@ -187,7 +187,7 @@ class OCP:
         n_stages = self.n_nodes - 1
         dts = symbolic_geometric_time_steps(self.n_nodes, p["dt_min"], p["dt_max"])
         stages = [
-            form.stage(str(k), p["q_hat"], has_input=k < n_stages, has_torque=k < S.n_tau_nodes)
+            form.stage(str(k), p["q_hat"], has_input=k < n_stages, torque_limited=k < S.n_tau_nodes)
             for k in range(self.n_nodes)
         ]
         x_parts, g_parts, lbg, ubg, eq = [], [], [], [], []
@@ -202,7 +202,7 @@ class OCP:
                 nu=st.u.numel() if has_input else 0,
                 x_offset=offset,
                 u_offset=offset + form.nx if has_input else None,
-                has_torque=st.tau is not None,
+                has_torque=st.torque_limited,
                 g_offset=n_rows,
             )
             x_parts += [st.x, st.u] if has_input else [st.x]
@@ -224,6 +224,7 @@ class OCP:
 
         self.params = P
         self.stages = infos
+        self.plan_function = self._plan_function(stages, P, dts)
         self.dts_function = ca.Function("dts", [p["dt_min"], p["dt_max"]], [ca.vertcat(*dts)])
         self.nlp = {"x": ca.vertcat(*x_parts), "p": P.vector, "f": cost, "g": ca.vertcat(*g_parts)}
         self.lbg, self.ubg = np.array(lbg), np.array(ubg)
@@ -278,6 +279,8 @@ class OCP:
         def add(name, expr, lo, hi):
             expr = ca.vec(expr)
             n = expr.numel()
+            if n == 0:
+                return
             rows.append(
                 (
                     name,
@@ -287,32 +290,35 @@ class OCP:
                 )
             )
 
-        # Cost: quadratic tracking with runtime diagonal weights (terminal = stage state cost).
-        cost = ca.dot(p["Q"], (st.x - ca.vertcat(p["dq_des"], p["v_des"])) ** 2)
-        if has_input:
-            contact = sp["contact"]
-            u_des = ca.vertcat(
-                ca.SX.zeros(self.nv),
-                *[ca.vertcat(0, 0, sp["force_des"][i]) for i in range(self.n_feet)],
-                *([p["ee_force"]] if robot.has_arm else []),
-                ca.SX.zeros(self.nj) if st.tau is not None else ca.SX(0, 1),
-            )
-            cost += ca.dot(p["R"][: st.u.numel()], (st.u - u_des) ** 2)
-            # Gap-closing transition first (Fatrop structure detection).
-            add("transition", x_next - form.transition(st, sp["dt"]), 0, 0)
-        if k == 0:
-            add("initial_state", ca.vertcat(st.dq, st.v - p["v_hat"]), 0, 0)
-
+        # Cost: quadratic tracking of [dq, v] with runtime diagonal weights (terminal = stage state cost);
+        # v is a state or an input depending on the formulation (none at a centroidal-velocity terminal).
+        if st.v is not None:
+            cost = ca.dot(p["Q"], (ca.vertcat(st.dq, st.v) - ca.vertcat(p["dq_des"], p["v_des"])) ** 2)
+        else:
+            cost = ca.dot(p["Q"][: self.nv], (st.dq - p["dq_des"]) ** 2)
         data = form.kinematics(st) if has_input else cpin.forward_kinematics(self.smodel, st.q, st.v)
         if has_input:
+            contact = sp["contact"]
             F = st.forces
-            applied = {frame: contact[i] * F[3 * i : 3 * i + 3] for i, frame in enumerate(robot.foot_frames)}
-            if robot.has_arm:
-                applied[robot.ee_frame] = F[3 * self.n_feet : 3 * self.n_feet + 3]
+            f_des = ca.vertcat(
+                *[ca.vertcat(0, 0, sp["force_des"][i]) for i in range(self.n_feet)],
+                *([p["ee_force"]] if robot.has_arm else []),
+            )
+            R = p["R"]
+            cost += ca.dot(R[self.nv : self.nv + self.nf], (F - f_des) ** 2)
+            for expr, weights in form.regularization(st):
+                cost += ca.dot(R[weights], expr**2)
+            applied = self.applied_forces(st, contact)
+            # Gap-closing transition first (Fatrop structure detection).
+            add("transition", x_next - form.transition(st, sp["dt"], data, applied), 0, 0)
+        if k == 0:
+            add("initial_state", form.initial_state(st, p["q_hat"], p["v_hat"]), 0, 0)
+        velocity_rows = k >= 1 or form.velocity_is_input  # v_0 is fixed by the measurement otherwise
+        if has_input:
             add("dynamics", form.dynamics_constraints(st, data, applied), 0, 0)
-            if st.tau is not None:
+            if st.torque_limited:
                 tau_max = robot.joint_torque_limits
-                add("torque_limits", st.tau, -tau_max, tau_max)
+                add("torque_limits", form.torque_expression(st, data, applied), -tau_max, tau_max)
             cone = []
             for i in range(self.n_feet):
                 fx, fy, fz = F[3 * i], F[3 * i + 1], F[3 * i + 2]
@@ -324,7 +330,7 @@ class OCP:
             add("friction_cone", ca.vertcat(*cone), 0, np.inf)
             if robot.has_arm:
                 add("ee_force", F[3 * self.n_feet :] - p["ee_force"], 0, 0)
-            if k >= 1:
+            if velocity_rows:
                 foot_rows = []
                 for i, frame in enumerate(robot.foot_frames):
                     vel = cpin.frame_velocity(data, frame, cpin.LOCAL_WORLD_ALIGNED).linear
@@ -334,15 +340,73 @@ class OCP:
                         vel[2] - (1 - c) * sp["swing_vz"][i],
                     ]
                 add("foot_velocity", ca.vertcat(*foot_rows), 0, 0)
+                if robot.has_arm:
+                    ee_vel = cpin.frame_velocity(data, robot.ee_frame, cpin.LOCAL_WORLD_ALIGNED).linear
+                    add("ee_velocity", ee_vel - sp["ee_velocity"], 0, 0)
         if k >= 1:
-            if robot.has_arm and has_input:
-                ee_vel = cpin.frame_velocity(data, robot.ee_frame, cpin.LOCAL_WORLD_ALIGNED).linear
-                add("ee_velocity", ee_vel - sp["ee_velocity"], 0, 0)
             lo_q, hi_q = robot.joint_position_limits
-            v_max = robot.joint_velocity_limits
             add("joint_position_limits", st.q[7:], lo_q, hi_q)
+        if velocity_rows and st.v is not None:
+            v_max = robot.joint_velocity_limits
             add("joint_velocity_limits", st.v[6:], -v_max, v_max)
         return cost, rows
+
+    def applied_forces(self, st, contact) -> dict[str, ca.SX]:
+        """Forces acting on the robot per contact frame: ``c_i F_i`` on the feet (a swing foot carries
+        none), the arm force as is."""
+        F = st.forces
+        applied = {frame: contact[i] * F[3 * i : 3 * i + 3] for i, frame in enumerate(self.robot.foot_frames)}
+        if self.robot.has_arm:
+            applied[self.robot.ee_frame] = F[3 * self.n_feet : 3 * self.n_feet + 3]
+        return applied
+
+    def _plan_function(self, stages, P: ParameterLayout, dts) -> ca.Function:
+        """``(w, p) -> (dq, v, a, forces, tau)``: the physical plan of any formulation.
+
+        ``v`` where the formulation has none (the terminal node of centroidal velocity) repeats the last
+        one; ``a`` is the formulation's acceleration or, at the velocity level, the finite difference of
+        the joint velocities with the base acceleration the contact forces imply (so that the RNEA base
+        rows vanish and the torques are consistent with the planned forces); ``tau`` is the torque
+        variables where they exist, else the RNEA torques of the plan on the torque-limited nodes (what
+        the low-level controller applies).
+        """
+        p = P.symbols
+        v = [st.v for st in stages]
+        for k in range(1, len(v)):
+            if v[k] is None:
+                v[k] = v[k - 1]
+        a, forces, tau = [], [], []
+        for k, st in enumerate(stages[:-1]):
+            applied = self.applied_forces(st, p["contact"][:, k])
+            a_k = st.a
+            if a_k is None:  # velocity level: joint accelerations by finite differences, base from the forces
+                a_j = (v[k + 1][6:] - v[k][6:]) / dts[k]
+                a_b = cpin.centroidal_base_acceleration(self.smodel, st.q, v[k], a_j, applied)
+                a_k = ca.vertcat(a_b, a_j)
+            a.append(a_k)
+            forces.append(ca.vertcat(*applied.values()))
+            if st.tau is not None:
+                tau.append(st.tau)
+            elif st.torque_limited:
+                tau.append(cpin.rnea(self.smodel, st.q, v[k], a_k, applied)[6:])
+        w = self.nlp_variables(stages)
+        return ca.Function(
+            "plan",
+            [w, P.vector],
+            [
+                ca.horzcat(*[st.dq for st in stages]),
+                ca.horzcat(*v),
+                ca.horzcat(*a),
+                ca.horzcat(*forces),
+                ca.horzcat(*tau),
+            ],
+            ["w", "p"],
+            ["dq", "v", "a", "forces", "tau"],
+        )
+
+    @staticmethod
+    def nlp_variables(stages) -> ca.SX:
+        return ca.vertcat(*[ca.vertcat(st.x, st.u) if st.u is not None else st.x for st in stages])
 
     # --- helpers for solvers and controllers -----------------------------------------------------------
     def stage_sizes(self) -> dict[str, list[int]]:
@@ -354,25 +418,35 @@ class OCP:
         return {"nx": nx, "nu": nu, "ng": ng}
 
     def split(self, w: np.ndarray) -> dict[str, np.ndarray]:
-        """Split a primal vector into per-node arrays: ``dq``, ``v`` (N, nv), ``a`` (N-1, nv),
-        ``forces`` (N-1, n_c, 3) and ``tau`` (n_tau, nj)."""
+        """Split a primal vector into the formulation's named blocks, stacked over the nodes that have
+        them (e.g. ``dq``, ``v`` (N, nv); ``a``, ``F`` (N-1, ...); ``tau`` (stages with torques, nj))."""
         w = np.asarray(w, dtype=float).ravel()
-        nv, n_c = self.nv, self.nf // 3
-        dq = np.array([w[s.x_offset : s.x_offset + nv] for s in self.stages])
-        v = np.array([w[s.x_offset + nv : s.x_offset + 2 * nv] for s in self.stages])
-        inputs = [w[s.u_offset : s.u_offset + s.nu] for s in self.stages if s.u_offset is not None]
-        a = np.array([u[:nv] for u in inputs])
-        forces = np.array([u[nv : nv + self.nf].reshape(n_c, 3) for u in inputs])
-        tau = np.array([u[nv + self.nf :] for u in inputs if u.size > nv + self.nf])
-        return {"dq": dq, "v": v, "a": a, "forces": forces, "tau": tau}
+        form = self.formulation
+        out: dict[str, list] = {}
+        for s in self.stages:
+            i = s.x_offset
+            blocks = form.state_blocks()
+            if s.u_offset is not None:
+                blocks = blocks + form.input_blocks(s.has_torque)
+            for name, n in blocks:
+                out.setdefault(name, []).append(w[i : i + n])
+                i += n
+        return {name: np.array(values) for name, values in out.items()}
 
-    def join(self, dq, v, a, forces, tau) -> np.ndarray:
-        """Inverse of :meth:`split`."""
+    def join(self, q_hat, dq, v, a, forces, tau) -> np.ndarray:
+        """Primal vector from physical quantities (the inverse of the plan function).
+
+        Args:
+            q_hat: Measured configuration (nq,).
+            dq, v: (N, nv) increments and velocities; a: (N-1, nv); forces: (N-1, n_c, 3) [N];
+            tau: (n, nj) joint torques of the first ``n`` stages (missing rows are zero).
+        """
+        form, model = self.formulation, self.robot.model
         parts = []
         for s in self.stages:
-            parts += [dq[s.k], v[s.k]]
+            q = pin.integrate(model, q_hat, dq[s.k]) if form.velocity_is_input else None
+            parts.append(form.state_values(q, dq[s.k], v[s.k]))
             if s.u_offset is not None:
-                parts += [a[s.k], np.ravel(forces[s.k])]
-                if s.has_torque:
-                    parts.append(tau[s.k])
+                tau_k = tau[s.k] if s.k < len(tau) else None
+                parts.append(form.input_values(v[s.k], a[s.k], forces[s.k], tau_k, s.has_torque))
         return np.concatenate(parts)

@@ -129,6 +129,8 @@ class Payload:
         tether_length: Rest length of the tether [m].
         tether_stiffness: Tether stiffness [N/m].
         tether_damping: Tether damping along the rope [N s/m] (only while taut).
+        rolling_friction: Rolling (and spinning) friction coefficient [m]; a large value (e.g. 1) makes
+            the sphere slide like a sled instead of rolling (a dragged load).
     """
 
     mass: float
@@ -139,6 +141,7 @@ class Payload:
     tether_length: float = 1.0
     tether_stiffness: float = 5000.0
     tether_damping: float = 100.0
+    rolling_friction: float = 0.0
 
 
 SceneObject = Box | Wall | Payload
@@ -471,6 +474,7 @@ class PyBulletPlant(Plant):
         tau_joints: np.ndarray,
         contact: np.ndarray | None = None,
         external_wrench: np.ndarray | None = None,
+        ee_force: np.ndarray | None = None,
     ) -> PlantState:
         """Advance the simulation by one step ``dt`` with the joint torques held constant.
 
@@ -480,12 +484,15 @@ class PyBulletPlant(Plant):
             contact: Ignored (accepted for interface compatibility: contacts come from the physics).
             external_wrench: Optional disturbance on the base, shape (6,): force [N] then torque [N m], world
                 axes, applied at (and taken about) the base link origin.
+            ee_force: Optional disturbance force [N] (3,), world axes, at the end-effector frame origin
+                (a push on the gripper).
 
         Returns:
             The state after the step (a copy).
 
         Raises:
-            ValueError: On a wrong shape or a non-finite value in ``tau_joints`` or ``external_wrench``.
+            ValueError: On a wrong shape or a non-finite value in ``tau_joints``, ``external_wrench`` or
+                ``ee_force``.
             FloatingPointError: If PyBullet returns a non-finite state.
         """
         del contact
@@ -500,6 +507,13 @@ class PyBulletPlant(Plant):
         if wrench is not None:
             p.applyExternalForce(body, -1, wrench[:3], self._q[:3], p.WORLD_FRAME, physicsClientId=cid)
             p.applyExternalTorque(body, -1, wrench[3:], p.WORLD_FRAME, physicsClientId=cid)
+        if ee_force is not None:
+            if self._ee_link is None:
+                raise ValueError(f"robot {self._robot.name!r} has no end effector to push")
+            force = _finite_vector(ee_force, 3, "ee_force")
+            p.applyExternalForce(
+                body, self._ee_link, force, self.ee_position(), p.WORLD_FRAME, physicsClientId=cid
+            )
         for name, payload in self._tethers.items():
             self._apply_tether(name, payload)
         p.stepSimulation(physicsClientId=cid)
@@ -706,10 +720,23 @@ class PyBulletPlant(Plant):
             body = p.createMultiBody(obj.mass, shape, basePosition=position, physicsClientId=cid)
             self._payloads[name] = obj
         p.changeDynamics(body, -1, lateralFriction=obj.friction, physicsClientId=cid)
+        if isinstance(obj, Payload) and obj.rolling_friction > 0:
+            p.changeDynamics(
+                body,
+                -1,
+                rollingFriction=obj.rolling_friction,
+                spinningFriction=obj.rolling_friction,
+                physicsClientId=cid,
+            )
         self._bodies[name] = body
         if isinstance(obj, Payload) and obj.attach is not None:
             self.attach_payload(name, obj.attach)
         return body
+
+    @property
+    def body_names(self) -> list[str]:
+        """Names of the scene bodies, in the order they were added."""
+        return list(self._bodies)
 
     def body(self, name: str) -> int:
         """PyBullet body id of a scene object."""

@@ -14,6 +14,8 @@ Example:
 
 from wbmpc.cpin.aba import aba, aba_function
 from wbmpc.cpin.centroidal import (
+    centroidal_base_acceleration,
+    centroidal_base_velocity,
     centroidal_map,
     centroidal_map_time_variation,
     centroidal_momentum,
@@ -40,6 +42,8 @@ from wbmpc.cpin.rnea import rnea, rnea_function
 __all__ = [
     "aba",
     "aba_function",
+    "centroidal_base_acceleration",
+    "centroidal_base_velocity",
     "centroidal_map",
     "centroidal_map_time_variation",
     "centroidal_momentum",

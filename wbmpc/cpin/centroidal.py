@@ -273,3 +273,82 @@ def static_torque_estimate(
     """
     data = forward_kinematics(model, q) if data is None else data
     return ca.vertcat(*_static_generalized_force(model, data, forces)[6:])
+
+
+def _solve3(M: ca.SX, b: ca.SX) -> ca.SX:
+    """``M^-1 b`` for a 3x3 symbolic matrix by Cramer's rule (smaller than a symbolic QR)."""
+    c0, c1, c2 = M[:, 0], M[:, 1], M[:, 2]
+    det = ca.dot(c0, cross(c1, c2))
+    return ca.vertcat(ca.dot(b, cross(c1, c2)), ca.dot(c0, cross(b, c2)), ca.dot(c0, cross(c1, b))) / det
+
+
+def _solve_base_block(model: SymbolicModel, A_b: ca.SX, rhs: ca.SX) -> ca.SX:
+    """Solve ``A_b[:, :6] x_b = rhs`` (base axes) using the block structure of the base columns.
+
+    The base columns of the centroidal map in base axes about the centre of mass are
+    ``[[m I, -m [c]x], [0, I_c]]`` (a base translation carries no angular momentum about the centre of
+    mass; ``I_c`` is the locked composite inertia), so ``omega = I_c^-1 k`` and
+    ``v = (p + m [c]x omega) / m``: one 3x3 solve instead of a 6x6 inverse.
+    """
+    omega = _solve3(A_b[3:6, 3:6], rhs[3:6])
+    linear = (rhs[0:3] - ca.mtimes(A_b[0:3, 3:6], omega)) / model.total_mass
+    return ca.vertcat(linear, omega)
+
+
+def _to_base_axes(R: ca.SX, world: ca.SX) -> ca.SX:
+    return ca.vertcat(ca.mtimes(R.T, world[0:3]), ca.mtimes(R.T, world[3:6]))
+
+
+def centroidal_base_velocity(
+    model: SymbolicModel, q: ca.SX, h: ca.SX, v_j: ca.SX, data: SymbolicData | None = None
+) -> ca.SX:
+    """Base velocity that gives the centroidal momentum ``h`` with joint velocities ``v_j`` (6,).
+
+    .. math::  v_b = A_b^{-1} (h_G - A_j v_j), \\qquad A_G = [A_b\\ A_j].
+
+    Args:
+        model: Symbolic model tables.
+        q: Configuration (nq,).
+        h: Centroidal momentum (6,) [kg m/s, kg m^2/s], world axes, about the centre of mass.
+        v_j: Joint velocities (nv - 6,).
+        data: Output of ``forward_kinematics(model, q, ...)`` to reuse.
+
+    Returns:
+        The base twist in the base frame (linear [m/s] then angular [rad/s]), Pinocchio's convention.
+    """
+    data = forward_kinematics(model, q) if data is None else data
+    A_b, _ = _base_momentum_map(model, data)
+    rhs = _to_base_axes(data.rotations[1], h) - ca.mtimes(A_b[:, 6:], v_j)
+    return _solve_base_block(model, A_b, rhs)
+
+
+def centroidal_base_acceleration(
+    model: SymbolicModel,
+    q: ca.SX,
+    v: ca.SX,
+    a_j: ca.SX,
+    forces: dict[str, ca.SX] | None = None,
+    data: SymbolicData | None = None,
+) -> ca.SX:
+    """Base acceleration from the centroidal momentum rate (6,).
+
+    .. math::  a_b = A_b^{-1} (\\dot h_G(q, F) - \\dot A_G v - A_j a_j).
+
+    Args:
+        model: Symbolic model tables.
+        q: Configuration (nq,).
+        v: Generalised velocity (nv,).
+        a_j: Joint accelerations (nv - 6,).
+        forces: ``{frame name: world-frame force (3,) [N]}`` on the robot at the frame origins.
+        data: Output of ``forward_kinematics(model, q, ...)`` to reuse.
+
+    Returns:
+        The base part of ``a`` (6,): derivative of the base twist in the base frame, such that
+        ``rnea(q, v, [a_b; a_j], forces)[:6] == 0``.
+    """
+    data = forward_kinematics(model, q) if data is None else data
+    A_b, _ = _base_momentum_map(model, data)
+    hdot = centroidal_momentum_rate(model, q, forces, data=data)
+    dA_v = ca.mtimes(centroidal_map_time_variation(model, q, v), v)
+    rhs = _to_base_axes(data.rotations[1], hdot - dA_v) - ca.mtimes(A_b[:, 6:], a_j)
+    return _solve_base_block(model, A_b, rhs)
