@@ -132,6 +132,20 @@ def _ee_start(robot: Robot, q: np.ndarray) -> np.ndarray:
     return data.oMf[robot.frame_id(robot.ee_frame)].translation.copy()
 
 
+def _robot_front(robot: Robot, q: np.ndarray) -> float:
+    """World x [m] of the robot's most forward point at ``q`` (the gripper tip with the arm forward), from
+    PyBullet's collision geometry: surfaces the gripper should touch are placed there, not at the
+    end-effector frame (``gripper_center`` sits 7.7 cm behind the tip on the B1 + Z1)."""
+    import pybullet as p
+
+    from wbmpc.pybullet_sim import PyBulletPlant
+
+    with PyBulletPlant(robot) as plant:
+        plant.reset(q, np.zeros(robot.nv))
+        n = p.getNumJoints(plant.body_id, physicsClientId=plant.client)
+        return max(p.getAABB(plant.body_id, j, physicsClientId=plant.client)[1][0] for j in range(-1, n))
+
+
 def _ee_velocity(log) -> np.ndarray:
     t, p = np.asarray(log.t), np.asarray(log.ee_position)
     return np.gradient(p, t, axis=0) if len(t) > 2 else np.zeros_like(p)
@@ -272,7 +286,7 @@ def _kick_report(robot: Robot, result: ClosedLoopResult, t_kick: float) -> dict:
 
 
 # --------------------------------------------------------------------------------------------- 3
-def _tether_scene(robot: Robot, q0: np.ndarray, mass: float, length: float = 0.8, friction: float = 0.5):
+def _tether_scene(robot: Robot, q0: np.ndarray, mass: float, length: float = 1.5, friction: float = 0.5):
     """A sled-like load (a sphere that slides, not rolls) on a taut tether in front of the end effector."""
     ee = _ee_start(robot, q0)
     radius = 0.08
@@ -298,7 +312,9 @@ def _pull_run(
     q0 = robot.q_nominal
     scene, direction = _tether_scene(robot, q0, mass)
     mu = 0.5 * ground_friction  # load friction x ground friction (PyBullet multiplies them)
-    tension = mu * mass * robot.gravity / max(direction[0], 0.2)
+    # Steady sliding, rope at theta above the horizontal: T cos(theta) = mu (m g - T sin(theta)).
+    cos_t, sin_t = direction[0], -direction[2]
+    tension = mu * mass * robot.gravity / (cos_t + mu * sin_t)
     ee_force = tuple(tension * direction)  # the rope pulls the end effector towards the load
     speed = 0.1
     if walking:
@@ -307,7 +323,8 @@ def _pull_run(
     else:
         kwargs = {"ee_velocity": (-0.05, 0.0, 0.0)}
         gait = make_gait("stand", GAIT_PERIOD)
-    duration = duration or _pick(quick, full=4.0, quick=1.0)
+    if duration is None:
+        duration = _pick(quick, full=4.0, quick=1.0) if walking else _pick(quick, full=3.0, quick=1.5)
 
     def ramp(t):  # ramp the commanded force in over 0.3 s (the rope tightens as the arm moves)
         s = min(1.0, t / 0.3)
@@ -395,12 +412,11 @@ def box_pushing(quick=None, progress=True, robot=None, force: float = 30.0) -> E
     """
     quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     ee = _ee_start(robot, robot.q_nominal)
-    depth, height = 0.2, ee[2] + 0.15
+    front = _robot_front(robot, robot.q_nominal) + 0.002
+    depth, height = 0.2, ee[2] + 0.1
     scene = {
-        "box": Box(
-            (depth, 0.4, height), (ee[0] + 0.5 * depth + 0.01, ee[1], 0.5 * height), mass=5.0, friction=0.8
-        ),
-        "wall": Wall((ee[0] + depth + 0.01, ee[1], 0.5), (-1.0, 0.0, 0.0), size=(2.0, 1.0)),
+        "box": Box((depth, 0.4, height), (front + 0.5 * depth, ee[1], 0.5 * height), mass=5.0, friction=0.8),
+        "wall": Wall((front + depth, ee[1], 0.6), (-1.0, 0.0, 0.0), size=(2.0, 1.2)),
     }
     hold = _pick(quick, full=1.0, quick=0.5)
 
@@ -442,8 +458,11 @@ def wiping(quick=None, progress=True, robot=None, normal_force: float = 20.0) ->
     normal-force target; the simulator measures the normal force actually applied."""
     quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("stand", GAIT_PERIOD))
     ee = _ee_start(robot, robot.q_nominal)
-    board = Wall((ee[0] + 0.005, ee[1], ee[2]), (-1.0, 0.0, 0.0), size=(1.2, 0.8), friction=0.3)
+    front = _robot_front(robot, robot.q_nominal)
+    board = Wall((front + 0.002, ee[1], ee[2]), (-1.0, 0.0, 0.0), size=(1.2, 0.8), friction=0.3)
+    # The reference's centre is 1.5 cm inside the board: the position feedback keeps the tip pressed on it.
     reference = ArmReference(amplitude=(0.0, 0.1, 0.0), period=_pick(quick, full=3.0, quick=1.5), ramp=0.5)
+    reference = reference.centered_at(robot.q_nominal, ee + np.array([0.015, 0.0, 0.0]))
 
     def schedule(t):
         return {"ee_force": (-normal_force * min(1.0, t / 0.5), 0.0, 0.0)}
@@ -684,3 +703,17 @@ def _json_default(value):
 
 if __name__ == "__main__":
     main()
+
+
+def replay_html(
+    viewer, result: ExperimentResult, directory: Path | None = None, run: str | None = None
+) -> Path:
+    """Replay one run of an experiment in a :class:`wbmpc.viz.Viewer` (measured feet forces as arrows)
+    and export it as a self-contained HTML file ``<directory>/<name>[_<run>].html``."""
+    label = run or next(iter(result.runs))
+    log = result.runs[label].log.arrays()
+    forces = np.concatenate([log["foot_forces"], log["ee_force_sim"][:, None, :]], axis=1)
+    viewer.animation(log["q"], log["t"], forces=forces, contact=log["contact_sim"])
+    directory = Path(directory) if directory is not None else REPO_ROOT / "data/output/sim"
+    suffix = "" if len(result.runs) == 1 else f"_{label}"
+    return viewer.export_html(directory / f"{result.name}{suffix}.html")

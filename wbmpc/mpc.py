@@ -111,6 +111,9 @@ class MPCConfig:
         compiled: Solve with the generated and compiled NLP functions (Fatrop only; built once and
             cached, see :mod:`wbmpc.codegen`); structural like ``solver``.
         compile_flags: gcc flags of the compiled library.
+        cold_retry: After a failed warm-started solve, retry once from a cold start (same tick) before
+            falling back to the previous plan.
+        retry_max_iter: Iteration cap of that retry.
     """
 
     gait: Gait = field(default_factory=lambda: make_gait("trot", 0.8))
@@ -130,6 +133,8 @@ class MPCConfig:
     dual_warm_start: bool = True
     compiled: bool = False
     compile_flags: tuple[str, ...] = ("-O1",)
+    cold_retry: bool = True
+    retry_max_iter: int = 100
 
     def __post_init__(self):
         for name in ("dt_min", "dt_max", "mu", "tol"):
@@ -205,24 +210,26 @@ class WholeBodyMPC:
         self.n_nodes = self.ocp.n_nodes
         self._solvers = {}
         self.previous: MPCSolution | None = None
-        self.stats = {"solves": 0, "failures": 0, "exceptions": 0}
+        self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0}
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.last_inputs: dict | None = None
         self.verbose = True
 
     # --- solver construction --------------------------------------------------------------------------------
-    def _solver(self, cold: bool) -> ca.Function:
+    def _solver(self, cold: bool, max_iter: int | None = None) -> ca.Function:
         """The solver for cold or warm starts (built on first use)."""
-        key = (self.config.solver, cold)
+        key = (self.config.solver, cold, max_iter)
         if key not in self._solvers:
-            self._solvers[key] = self.make_solver(f"wbmpc_{self.config.solver}", cold)
+            self._solvers[key] = self.make_solver(f"wbmpc_{self.config.solver}", cold, max_iter)
         return self._solvers[key]
 
-    def make_solver(self, name: str, cold: bool) -> ca.Function:
-        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config."""
+    def make_solver(self, name: str, cold: bool, max_iter: int | None = None) -> ca.Function:
+        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config
+        (``max_iter`` overrides the config's iteration cap)."""
         cfg = self.config
-        max_iter = cfg.cold_max_iter if cold else cfg.max_iter
+        if max_iter is None:
+            max_iter = cfg.cold_max_iter if cold else cfg.max_iter
         mu_init = cfg.mu_init_cold if cold else cfg.mu_init_warm
         if cfg.solver == "fatrop":
             inner = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init}
@@ -404,12 +411,40 @@ class WholeBodyMPC:
             if cold
             else self.shifted_guess(self.previous, q_hat, t, params)
         )
-        solver = self._solver(cold)
         args = {"x0": x0, "p": p, "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
         if not cold and self.config.dual_warm_start and self.previous.lam_g is not None:
             args["lam_g0"] = self.previous.lam_g
         self.last_inputs = args  # what the solver was called with (for replays, exports, debugging)
         self.stats["solves"] += 1
+        w, lam_g, report = self._run_solver(self._solver(cold), args)
+        if not report["success"] and not cold and self.config.cold_retry:
+            # A warm start far from the new state (e.g. after a push) can stall; a cold start from the
+            # measured state often converges. Its time adds to this solve's.
+            self.stats["cold_retries"] += 1
+            args = {**args, "x0": self.cold_guess(q_hat, v_hat, params)}
+            args.pop("lam_g0", None)
+            w2, lam_g2, report2 = self._run_solver(self._solver(True, self.config.retry_max_iter), args)
+            report2["solve_time"] += report["solve_time"]
+            report2["iterations"] += max(report["iterations"], 0)
+            report2["status"] = f"cold retry: {report2['status']}"
+            if report2["success"] or w is None:
+                w, lam_g, report = w2, lam_g2, report2
+            else:
+                report["solve_time"], report["iterations"] = report2["solve_time"], report2["iterations"]
+        if not report["success"]:
+            self.stats["failures"] += 1
+            if self.previous is not None:
+                return replace(self.previous, fallback=True, **report)
+            if w is None:
+                w = x0
+        solution = self._solution(w, lam_g, q_hat, t, p, params, report)
+        self.previous = solution
+        return solution
+
+    def _run_solver(
+        self, solver: ca.Function, args: dict
+    ) -> tuple[np.ndarray | None, np.ndarray | None, dict]:
+        """One solver call: primal and dual solution (``None`` if it raised) and a report."""
         start = time.perf_counter()
         try:
             out = solver(**args)
@@ -430,22 +465,14 @@ class WholeBodyMPC:
             w = lam_g = None
             timings = {"wall": elapsed}
         report = {
-            "success": success,
+            "success": bool(success),
             "status": status,
             "iterations": iterations,
             "solve_time": elapsed,
             "constraint_violation": violation,
             "timings": timings,
         }
-        if not success:
-            self.stats["failures"] += 1
-            if self.previous is not None:
-                return replace(self.previous, fallback=True, **report)
-            if w is None:
-                w = x0
-        solution = self._solution(w, lam_g, q_hat, t, p, params, report)
-        self.previous = solution
-        return solution
+        return w, lam_g, report
 
     def _solution(self, w, lam_g, q_hat, t, p, params, report: dict) -> MPCSolution:
         plan = {key: np.array(value).T for key, value in self.ocp.plan_function(w=w, p=p).items()}

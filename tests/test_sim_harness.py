@@ -1,0 +1,135 @@
+"""Simulation harness: sensing and filtering, columnar logs, computation delay, disturbances, errors."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.disturbances import Kick, Push
+from wbmpc.gait import make_gait
+from wbmpc.logs import RunLog, load_log, save_log
+from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.ocp import OCPSettings
+from wbmpc.robot import load_b1_z1
+from wbmpc.sensing import LowPassFilter, SensorNoise, StateSensor
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_b1_z1()
+
+
+def test_low_pass_step_response_and_attenuation():
+    dt, fc = 0.002, 50.0
+    f = LowPassFilter(fc, dt)
+    alpha = dt / (dt + 1 / (2 * np.pi * fc))
+    f(np.zeros(1))
+    out = [f(np.ones(1))[0] for _ in range(5)]
+    np.testing.assert_allclose(out, 1 - (1 - alpha) ** np.arange(1, 6))
+    # A 200 Hz sine (4x the cut-off) comes out attenuated, a 2 Hz one passes.
+    t = np.arange(0, 1, dt)
+    for freq, low, high in ((200.0, 0.0, 0.35), (2.0, 0.95, 1.01)):
+        f = LowPassFilter(fc, dt)
+        y = np.array([f(np.array([np.sin(2 * np.pi * freq * ti)]))[0] for ti in t])
+        amplitude = np.abs(y[len(y) // 2 :]).max()
+        assert low <= amplitude <= high, (freq, amplitude)
+
+
+def test_sensor_ground_truth_noise_and_filter(robot):
+    q, v = robot.q_nominal, np.linspace(-1, 1, robot.nv)
+    truth = StateSensor(robot.model, 0.002)
+    assert truth.is_ground_truth
+    qm, vm = truth.measure(q, v)
+    assert np.array_equal(qm, q) and np.array_equal(vm, v)
+    noisy = StateSensor(robot.model, 0.002, SensorNoise(joint_position=0.01, base_orientation=0.02, seed=3))
+    samples = np.array([noisy.measure(q, v)[0] for _ in range(2000)])
+    assert abs(np.std(samples[:, 7:] - q[7:]) - 0.01) < 0.001
+    assert np.allclose(np.linalg.norm(samples[:, 3:7], axis=1), 1.0)  # still unit quaternions
+    filtered = StateSensor(robot.model, 0.002, velocity_cutoff_hz=50.0)
+    filtered.measure(q, np.zeros(robot.nv))
+    _, v1 = filtered.measure(q, v)
+    assert np.allclose(v1[:6], v[:6])  # the base velocity is not filtered
+    assert np.all(np.abs(v1[6:]) < np.abs(v[6:]) + 1e-12) and np.abs(v1[6:] - v[6:]).max() > 0.1
+    with pytest.raises(ValueError, match="joint_velocity"):
+        SensorNoise(joint_velocity=-1.0)
+
+
+def test_log_round_trip_and_errors(tmp_path):
+    log = RunLog(
+        signals={"t": np.arange(5) * 0.002, "q": np.random.default_rng(0).normal(size=(5, 3))},
+        solves={"solve_t": np.array([0.0, 0.0125]), "status": np.array(["ok", "max iter"])},
+        meta={"robot": "b1_z1", "summary": {"fell": False}},
+    )
+    path = save_log(log, tmp_path / "run")
+    assert path.suffix == ".npz"
+    back = load_log(path)
+    np.testing.assert_array_equal(back["q"], log.signals["q"])
+    assert list(back["status"]) == ["ok", "max iter"]
+    assert back.meta["summary"] == {"fell": False} and back.meta["format_version"] == 1
+    assert back.duration == pytest.approx(0.008)
+    with pytest.raises(ValueError, match="column 'q' has 4 rows"):
+        save_log(RunLog(signals={"t": np.zeros(5), "q": np.zeros((4, 3))}), tmp_path / "bad")
+    with pytest.raises(FileNotFoundError, match="no log file"):
+        load_log(tmp_path / "missing.npz")
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    with pytest.raises(ValueError, match="not a wbmpc log"):
+        load_log(tmp_path / "other.npz")
+    with pytest.raises(KeyError, match="no column 'tau'"):
+        back["tau"]
+
+
+@pytest.mark.parametrize("delay", ["off", 0.0125, "measured"])
+def test_closed_loop_with_and_without_delay_keeps_standing(robot, delay, tmp_path):
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=7), MPCConfig(gait=make_gait("stand")))
+    mpc.verbose = False
+    config = ClosedLoopConfig(
+        duration=0.3, plant="pybullet", kd=5.0, delay=delay, velocity_cutoff_hz=50.0, arm_reference=None
+    )
+    result = run_closed_loop(mpc, config, progress=False)
+    assert not result.fell and result.summary["max_tilt_rad"] < 0.05
+    log = result.log
+    lag = np.array(log.apply_t) - np.array(log.solve_t)
+    if delay == "off":
+        assert np.all(lag == 0)
+    elif delay == "measured":  # each plan applies after its own solve time (rounded up to plant steps)
+        assert np.all(lag[1:] >= np.array(log.solve_time[1:]) - 1e-9)
+        assert len(log.solve_t) < 0.3 * 80  # a slow solver cannot run at 80 Hz with real-time delay
+    else:
+        assert np.allclose(lag[1:], 0.0125, atol=config.plant_dt)
+    run = load_log(result.save(tmp_path / f"run_{delay}"))
+    assert run["q"].shape == (len(log.t), robot.nq)
+    assert run["foot_forces"].shape == (len(log.t), 4, 3)
+    # Standing: the simulator's feet carry the weight (within 5 % over the last 0.1 s).
+    weight = robot.mass * robot.gravity
+    assert abs(run["foot_forces"][-50:, :, 2].sum(axis=1).mean() - weight) < 0.05 * weight
+    assert run.meta["summary"]["delay"] == delay
+
+
+def test_kick_changes_the_base_velocity_once(robot):
+    """A lateral kick shows as a velocity jump of the logged base (world y) right after its time."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=7), MPCConfig(gait=make_gait("stand")))
+    mpc.verbose = False
+    config = ClosedLoopConfig(
+        duration=0.2, plant="pybullet", kd=5.0, arm_reference=None, disturbances=(Kick(0.1, (0.0, 0.3, 0.0)),)
+    )
+    log = run_closed_loop(mpc, config, progress=False).log.arrays()
+    v_y = np.array(
+        [
+            (pin.Quaternion(q[3:7]).toRotationMatrix() @ v[:3])[1]
+            for q, v in zip(log["q"], log["v"], strict=True)
+        ]
+    )
+    before, after = v_y[log["t"] < 0.1], v_y[(log["t"] > 0.1) & (log["t"] < 0.104)]
+    assert np.abs(before).max() < 0.05
+    assert after.max() > 0.15
+
+
+def test_bad_harness_configuration_is_named():
+    with pytest.raises(ValueError, match="delay must be"):
+        ClosedLoopConfig(delay="sometimes")
+    with pytest.raises(ValueError, match="need plant='pybullet'"):
+        ClosedLoopConfig(plant="rigid", disturbances=(Kick(0.1, (0, 1, 0)),))
+    with pytest.raises(ValueError, match="Push.target"):
+        Push(0.0, 0.1, (1, 0, 0), target="arm")
+    with pytest.raises(ValueError, match="Kick.delta_v"):
+        Kick(0.0, (1.0, 0.0))
