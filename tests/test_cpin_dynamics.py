@@ -50,6 +50,16 @@ def build(robot):
         hdot=ca.Function("hdot", [q, F], [centroidal_momentum_rate(smodel, q, forces)]),
         g=ca.Function("g", [q], [generalized_gravity(smodel, q)]),
         static=ca.Function("static", [q, F], [static_torque_estimate(smodel, q, forces)]),
+        v_b=ca.Function(
+            "v_b",
+            [q, h_sym := ca.SX.sym("h", 6), v[6:]],
+            [cpin.centroidal_base_velocity(smodel, q, h_sym, v[6:])],
+        ),
+        a_b=ca.Function(
+            "a_b",
+            [q, v, a_j := ca.SX.sym("a_j", smodel.nv - 6), F],
+            [cpin.centroidal_base_acceleration(smodel, q, v, a_j, forces)],
+        ),
     )
 
 
@@ -144,6 +154,26 @@ def test_centroidal_map_and_momentum_match_pinocchio(setup):
         h = np.array(f.h(q, v)).ravel()
         assert_close(h, pin.computeCentroidalMomentum(model, data, q, v).vector)
         assert_close(h, A @ v)
+
+
+def test_centroidal_base_velocity_inverts_the_momentum(setup):
+    """v_b = A_b^-1 (h - A_j v_j) recovers the base twist from Pinocchio's centroidal momentum."""
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    for q, v, _, _ in states(robot, 17):
+        h = pin.computeCentroidalMomentum(model, data, q, v).vector
+        assert_close(np.array(f.v_b(q, h, v[6:])).ravel(), v[:6])
+
+
+def test_centroidal_base_acceleration_matches_forward_dynamics(setup):
+    """a_b = A_b^-1 (hdot - Adot v - A_j a_j) equals the base part of pinocchio.aba for the same joint
+    accelerations and contact forces (the base is unactuated)."""
+    robot, f = setup
+    model, data = robot.model, robot.model.createData()
+    for q, v, F, rng in states(robot, 19):
+        tau = np.concatenate([np.zeros(6), rng.normal(scale=20.0, size=model.nv - 6)])
+        a = pin.aba(model, data, q, v, tau, pin_fext(model, data, q, robot.contact_frames, F))
+        assert_close(np.array(f.a_b(q, v, a[6:], F)).ravel(), a[:6], rtol=1e-8)
 
 
 def test_centroidal_map_time_variation_matches_pinocchio(setup):

@@ -82,8 +82,34 @@ def _setup(quick: bool | None, robot: Robot | None, **mpc_kwargs):
     return quick, robot, nodes, config
 
 
+_MPC_CACHE: dict[tuple, WholeBodyMPC] = {}
+
+
+def _mpc(robot: Robot, nodes: int, config: MPCConfig) -> WholeBodyMPC:
+    """An MPC for ``robot`` with ``nodes`` nodes and ``config``, re-used between runs when only runtime
+    settings differ (gait, time steps, weights: building the problem and its solvers takes seconds)."""
+    structural = (
+        config.solver,
+        config.compiled,
+        tuple(config.compile_flags),
+        config.tol,
+        config.max_iter,
+        config.cold_max_iter,
+        config.retry_max_iter,
+        config.mu_init_warm,
+        config.mu_init_cold,
+    )
+    key = (id(robot), nodes, structural)
+    mpc = _MPC_CACHE.get(key)
+    if mpc is None or mpc.robot is not robot:
+        mpc = _MPC_CACHE[key] = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes), config)
+    mpc.config = config
+    mpc.reset()
+    return mpc
+
+
 def _run(robot, nodes, mpc_config, loop: ClosedLoopConfig, progress: bool, q0=None) -> ClosedLoopResult:
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes), mpc_config)
+    mpc = _mpc(robot, nodes, mpc_config)
     mpc.verbose = progress
     return run_closed_loop(mpc, loop, q0=q0, progress=progress)
 
@@ -176,7 +202,7 @@ def arm_tracking(quick=None, progress=True, robot=None) -> ExperimentResult:
     """
     quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     loop = _base_loop(
-        duration=_pick(quick, full=10.0, quick=1.5),
+        duration=_pick(quick, full=10.0, quick=1.0),
         base_velocity=(0.2, 0.0, 0.0),
         arm_reference=ArmReference(ramp=_pick(quick, full=1.0, quick=0.3)),
     )
@@ -215,12 +241,12 @@ def disturbance_rejection(quick=None, progress=True, robot=None, magnitude: floa
     calf torques against their limits.
     """
     quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
-    kick_time = _pick(quick, full=2.0, quick=0.8)
+    kick_time = _pick(quick, full=2.0, quick=0.5)
     runs, per_phase = {}, {}
     for phase in (0.0, 0.25):
         t_kick = kick_time + phase * GAIT_PERIOD
         loop = _base_loop(
-            duration=t_kick + _pick(quick, full=2.5, quick=0.6),
+            duration=t_kick + _pick(quick, full=2.5, quick=0.5),
             disturbances=(Kick(t_kick, (0.0, magnitude, 0.0)),),
         )
         result = _run(robot, nodes, mpc_config, loop, progress)
@@ -324,7 +350,7 @@ def _pull_run(
         kwargs = {"ee_velocity": (-0.05, 0.0, 0.0)}
         gait = make_gait("stand", GAIT_PERIOD)
     if duration is None:
-        duration = _pick(quick, full=4.0, quick=1.0) if walking else _pick(quick, full=3.0, quick=1.5)
+        duration = _pick(quick, full=4.0, quick=1.0) if walking else _pick(quick, full=3.0, quick=1.2)
 
     def ramp(t):  # ramp the commanded force in over 0.3 s (the rope tightens as the arm moves)
         s = min(1.0, t / 0.3)
@@ -426,7 +452,7 @@ def box_pushing(quick=None, progress=True, robot=None, force: float = 30.0) -> E
             "ee_velocity": (0.02 if t < 0.5 else 0.0, 0, 0),
         }
 
-    loop = _base_loop(duration=_pick(quick, full=5.0, quick=1.2), scene=scene, command_schedule=schedule)
+    loop = _base_loop(duration=_pick(quick, full=5.0, quick=1.0), scene=scene, command_schedule=schedule)
     result = _run(robot, nodes, mpc_config, loop, progress)
     a = result.log.arrays()
     held = a["t"] >= hold
@@ -468,7 +494,7 @@ def wiping(quick=None, progress=True, robot=None, normal_force: float = 20.0) ->
         return {"ee_force": (-normal_force * min(1.0, t / 0.5), 0.0, 0.0)}
 
     loop = _base_loop(
-        duration=_pick(quick, full=6.0, quick=1.5),
+        duration=_pick(quick, full=6.0, quick=1.2),
         scene={"board": board},
         arm_reference=reference,
         command_schedule=schedule,
@@ -509,7 +535,7 @@ def compliance(quick=None, progress=True, robot=None, push: float = 40.0) -> Exp
     quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("stand", GAIT_PERIOD))
     start, duration = _pick(quick, full=1.0, quick=0.4), 0.3
     loop = _base_loop(
-        duration=_pick(quick, full=4.0, quick=1.4),
+        duration=_pick(quick, full=4.0, quick=1.1),
         arm_gains=(0.0, 0.5),
         disturbances=(Push(start, duration, (0.0, push, 0.0), target="ee"),),
     )
@@ -549,7 +575,7 @@ def time_steps_drift(quick=None, progress=True, robot=None, delay: float | str =
     """
     quick, robot, _, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     nodes = 15  # the comparison is about the grid: same nodes in both modes
-    duration = _pick(quick, full=10.0, quick=1.2)
+    duration = _pick(quick, full=10.0, quick=0.8)
     grids = {"adaptive": (0.01, 0.1), "uniform": (0.04, 0.04)}
     runs, drift = {}, {}
     for label, (dt_min, dt_max) in grids.items():

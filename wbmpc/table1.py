@@ -62,6 +62,13 @@ COLUMNS = (
     "ee_rms_m",
     "build_s",
     "build_peak_mb",
+    "pre_evaluations_ms",
+    "pre_linear_algebra_ms",
+    "post_evaluations_ms",
+    "post_linear_algebra_ms",
+    "stage_nx",
+    "stage_nu_max",
+    "stage_ng_max",
     "steps",
     "kp",
     "kd",
@@ -86,7 +93,15 @@ def table_row(
 
     ocp = OCP(robot, OCPSettings(n_nodes=nodes, formulation=formulation))
     row = ocp.formulation.describe()
-    row |= {"decision_variables": ocp.n_variables, "constraints": ocp.n_constraints, "nodes": nodes}
+    sizes = ocp.stage_sizes()
+    row |= {
+        "decision_variables": ocp.n_variables,
+        "constraints": ocp.n_constraints,
+        "nodes": nodes,
+        "stage_nx": sizes["nx"][0],
+        "stage_nu_max": max(sizes["nu"]),
+        "stage_ng_max": max(sizes["ng"]),
+    }
     del ocp
     pre = run_case(robot, "fatrop", False, nodes, steps, warmup, progress, formulation, kp, kd)
     row |= {
@@ -95,6 +110,8 @@ def table_row(
         "pre_median_ms": pre["median_ms"],
         "pre_p95_ms": pre["p95_ms"],
         "iterations_mean": pre["iterations_mean"],
+        "pre_evaluations_ms": pre["profile_mean_ms"]["evaluations"],
+        "pre_linear_algebra_ms": _linear_algebra(pre),
         "converged_fraction": pre["converged_fraction"],
         "constraint_violation_max": pre["constraint_violation_max"],
         "fell": pre["fell"],
@@ -113,6 +130,8 @@ def table_row(
             "post_median_ms": post["median_ms"],
             "post_p95_ms": post["p95_ms"],
             "post_iterations_mean": post["iterations_mean"],
+            "post_evaluations_ms": post["profile_mean_ms"]["evaluations"],
+            "post_linear_algebra_ms": _linear_algebra(post),
             "post_converged_fraction": post["converged_fraction"],
             "build_s": post["build_s"],
             "build_peak_mb": post["build_peak_mb"],
@@ -122,6 +141,13 @@ def table_row(
             ),
         }
     return row
+
+
+def _linear_algebra(record: dict) -> float | None:
+    """Fatrop's own time per solve [ms]: search direction (Riccati recursion) + initialisation."""
+    profile = record["profile_mean_ms"]
+    parts = [profile.get("search_direction"), profile.get("initialization")]
+    return None if any(p is None for p in parts) else float(sum(parts))
 
 
 def write_csv(rows: list[dict], path: Path) -> None:
