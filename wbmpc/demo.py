@@ -15,8 +15,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from wbmpc.quick import pick
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -115,7 +113,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = args.output
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    np.savez_compressed(out / "log.npz", **result.log.arrays())
+    result.save(out / "log.npz")  # columnar run log (wbmpc.logs), read with wbmpc.logs.load_log
     _figures(result, robot, out, args.speed)
     if not args.no_replay:
         _replay(result, robot, out)
