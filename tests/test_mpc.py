@@ -103,7 +103,7 @@ def test_injected_solver_failure_is_survived(robot, monkeypatch):
     first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
     assert first.success
 
-    def broken(cold):
+    def broken(cold, max_iter=None):
         def solve(**kwargs):
             raise RuntimeError("injected failure")
 
@@ -113,8 +113,30 @@ def test_injected_solver_failure_is_survived(robot, monkeypatch):
     second = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0125)
     assert second.fallback and not second.success
     assert "injected failure" in second.status
-    assert mpc.stats["failures"] == 1 and mpc.stats["exceptions"] == 1
+    # The warm solve and its cold retry both raised: one failure, two exceptions, no crash.
+    assert mpc.stats["failures"] == 1 and mpc.stats["exceptions"] == 2 and mpc.stats["cold_retries"] == 1
     np.testing.assert_array_equal(second.tau, first.tau)  # the controller keeps the previous plan
+
+
+def test_cold_retry_rescues_a_failed_warm_start(robot, monkeypatch):
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
+    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0).success
+    real = mpc._solver
+
+    def warm_broken(cold, max_iter=None):
+        if not cold:
+
+            def solve(**kwargs):
+                raise RuntimeError("injected warm failure")
+
+            return solve
+        return real(cold, max_iter)
+
+    monkeypatch.setattr(mpc, "_solver", warm_broken)
+    second = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0125)
+    assert second.success and not second.fallback
+    assert second.status.startswith("cold retry")
+    assert mpc.stats["cold_retries"] == 1 and mpc.stats["failures"] == 0
 
 
 def test_closed_loop_trot_stays_upright(robot):
