@@ -236,12 +236,13 @@ def arm_tracking(quick=None, progress=True, robot=None) -> ExperimentResult:
 def disturbance_rejection(quick=None, progress=True, robot=None, magnitude: float = 0.8) -> ExperimentResult:
     """A lateral base-velocity kick while trotting in place, at two gait phases.
 
-    Phase 0 is the FL/RR lift-off (the kick hits during a full swing); phase 0.25 is mid-swing. Reports the
-    peak lateral base velocity, the lateral displacement, the recovery time (|v_y| < 0.1 m/s) and the rear
+    Phases are fractions of the trot period after a lift-off of a diagonal pair (the trot is symmetric under
+    a half-period shift): phase 0 hits at the lift-off (a whole swing ahead), phase 0.25 mid-swing. Reports
+    the peak lateral base velocity, the lateral displacement, the recovery time (|v_y| < 0.1 m/s) and the rear
     calf torques against their limits.
     """
     quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
-    kick_time = _pick(quick, full=2.0, quick=0.5)
+    kick_time = _pick(quick, full=2.0, quick=0.4)  # lift-offs at multiples of 0.4 s
     runs, per_phase = {}, {}
     for phase in (0.0, 0.25):
         t_kick = kick_time + phase * GAIT_PERIOD
@@ -617,11 +618,14 @@ def time_steps_drift(quick=None, progress=True, robot=None, delay: float | str =
 
 # --------------------------------------------------------------------------------------------- sweep
 def robustness_sweep(quick=None, progress=True, robot=None, magnitudes=None, phases=None) -> ExperimentResult:
-    """Success (no fall) over a grid of lateral kick magnitudes [m/s] and gait phases (a benchmark)."""
+    """Success (no fall) over a grid of lateral kick magnitudes [m/s] and gait phases (a benchmark).
+
+    Phase 0 is the lift-off of a diagonal pair; 0.25 mid-swing; 0.5 the next lift-off (the other pair).
+    """
     quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
-    magnitudes = magnitudes or _pick(quick, full=(0.4, 0.8, 1.2, 1.6), quick=(0.8,))
-    phases = phases or _pick(quick, full=(0.0, 0.25, 0.5, 0.75), quick=(0.0,))
-    t0 = _pick(quick, full=1.0, quick=0.6)
+    magnitudes = magnitudes or _pick(quick, full=(0.4, 0.6, 0.8, 1.0), quick=(0.8,))
+    phases = phases or _pick(quick, full=(0.0, 0.125, 0.25, 0.375), quick=(0.0,))
+    t0 = _pick(quick, full=1.2, quick=0.4)  # a lift-off (a multiple of half the trot period): phase 0
     grid, runs = [], {}
     for m in magnitudes:
         for ph in phases:
