@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from wbmpc import experiments
+from wbmpc.logs import json_default
 from wbmpc.robot import load_b1_z1
 
 
@@ -16,7 +17,7 @@ def robot():
 
 def run(name, robot, **kwargs):
     result = experiments.EXPERIMENTS[name](quick=True, progress=False, robot=robot, **kwargs)
-    json.dumps(result.summary, default=experiments._json_default)  # the summary is JSON-serialisable
+    json.dumps(result.summary, default=json_default)  # the summary is JSON-serialisable
     return result
 
 

@@ -40,6 +40,7 @@ from wbmpc.arm_task import ArmReference
 from wbmpc.closed_loop import ClosedLoopConfig, ClosedLoopResult, machine_description, run_closed_loop
 from wbmpc.disturbances import Kick, Push
 from wbmpc.gait import make_gait
+from wbmpc.logs import json_default
 from wbmpc.mpc import MPCConfig, WholeBodyMPC
 from wbmpc.ocp import OCPSettings
 from wbmpc.pybullet_sim import Box, Payload, Wall
@@ -686,7 +687,7 @@ def save(result: ExperimentResult, directory: Path, log_directory: Path | None =
     """Write ``<name>.json`` (summary), ``<name>.png`` (figure) and optionally the runs' logs."""
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"{result.name}.json"
-    path.write_text(json.dumps(result.summary, indent=2, default=_json_default))
+    path.write_text(json.dumps(result.summary, indent=2, default=json_default))
     if result.figure is not None:
         figures = REPO_ROOT / "data/output/sim"
         figures.mkdir(parents=True, exist_ok=True)
@@ -721,14 +722,6 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"[experiments] {name}: wrote {path} ({result.summary['wall_time_s']:.0f} s)", flush=True)
         out[name] = result.summary
     return out
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return repr(value)
 
 
 if __name__ == "__main__":

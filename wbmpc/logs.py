@@ -99,7 +99,7 @@ def save_log(log: RunLog, path: str | Path) -> Path:
     arrays = {f"signals/{k}": np.asarray(v) for k, v in log.signals.items()}
     arrays |= {f"solves/{k}": np.asarray(v) for k, v in log.solves.items()}
     meta = {"format_version": FORMAT_VERSION, **log.meta}
-    arrays["meta"] = np.array(json.dumps(meta, default=_json_default))
+    arrays["meta"] = np.array(json.dumps(meta, default=json_default))
     np.savez_compressed(path, **arrays)
     return path
 
@@ -132,7 +132,8 @@ def load_log(path: str | Path) -> RunLog:
     return log
 
 
-def _json_default(value):
+def json_default(value):
+    """``json.dumps`` fallback for NumPy arrays and scalars and paths (anything else: its repr)."""
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):

@@ -105,13 +105,8 @@ def table_row(
     del ocp
     pre = run_case(robot, "fatrop", False, nodes, steps, warmup, progress, formulation, kp, kd)
     row |= {
-        "pre_mean_ms": pre["mean_ms"],
-        "pre_std_ms": pre["std_ms"],
-        "pre_median_ms": pre["median_ms"],
-        "pre_p95_ms": pre["p95_ms"],
+        **_timing_columns("pre", pre),
         "iterations_mean": pre["iterations_mean"],
-        "pre_evaluations_ms": pre["profile_mean_ms"]["evaluations"],
-        "pre_linear_algebra_ms": _linear_algebra(pre),
         "converged_fraction": pre["converged_fraction"],
         "constraint_violation_max": pre["constraint_violation_max"],
         "fell": pre["fell"],
@@ -125,13 +120,8 @@ def table_row(
     if compiled:
         post = run_case(robot, "fatrop", True, nodes, steps, warmup, progress, formulation, kp, kd)
         row |= {
-            "post_mean_ms": post["mean_ms"],
-            "post_std_ms": post["std_ms"],
-            "post_median_ms": post["median_ms"],
-            "post_p95_ms": post["p95_ms"],
+            **_timing_columns("post", post),
             "post_iterations_mean": post["iterations_mean"],
-            "post_evaluations_ms": post["profile_mean_ms"]["evaluations"],
-            "post_linear_algebra_ms": _linear_algebra(post),
             "post_converged_fraction": post["converged_fraction"],
             "build_s": post["build_s"],
             "build_peak_mb": post["build_peak_mb"],
@@ -141,6 +131,14 @@ def table_row(
             ),
         }
     return row
+
+
+def _timing_columns(prefix: str, record: dict) -> dict:
+    """Timing columns ``<prefix>_{mean,std,median,p95,evaluations,linear_algebra}_ms`` of a run record."""
+    columns = {f"{prefix}_{stat}_ms": record[f"{stat}_ms"] for stat in ("mean", "std", "median", "p95")}
+    columns[f"{prefix}_evaluations_ms"] = record["profile_mean_ms"]["evaluations"]
+    columns[f"{prefix}_linear_algebra_ms"] = _linear_algebra(record)
+    return columns
 
 
 def _linear_algebra(record: dict) -> float | None:
