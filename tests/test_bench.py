@@ -33,3 +33,30 @@ def test_quick_benchmark_writes_records(tmp_path):
         assert record["steps"] == 4
         assert 0 < record["median_ms"] <= record["p95_ms"] <= record["max_ms"]
         assert record["converged_fraction"] == 1.0
+
+
+def test_committed_table1_has_the_issue_columns_and_matches_its_markdown(tmp_path):
+    from wbmpc import table1
+    from wbmpc.formulations import FORMULATIONS
+
+    rows = table1.load_table()
+    required = {
+        "formulation",
+        "base_in_input",
+        "path_constraint",
+        "instructions",
+        "decision_variables",
+        "pre_mean_ms",
+        "pre_std_ms",
+        "post_mean_ms",
+        "post_std_ms",
+        "iterations_mean",
+        "build_s",
+    }
+    assert [r["formulation"] for r in rows] == list(FORMULATIONS)
+    for r in rows:
+        assert required <= set(r) and all(r[key] is not None for key in required)
+        assert r["post_mean_ms"] > 0 and r["pre_mean_ms"] > 0
+    assert (table1.REPO_ROOT / "data/bench/table1.md").read_text() == table1.markdown(rows)
+    table1.plot(rows, tmp_path / "figures" / "table1.png")
+    assert (tmp_path / "figures" / "table1.png").stat().st_size > 1000

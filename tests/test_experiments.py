@@ -80,3 +80,15 @@ def test_robustness_sweep_small_kick_succeeds(robot):
     s = run("robustness_sweep", robot, magnitudes=(0.2,), phases=(0.0,)).summary
     assert s["success_rate"] == 1.0
     assert len(s["grid"]) == 1
+
+
+def test_save_writes_the_summary_and_the_figure(tmp_path):
+    from matplotlib.figure import Figure
+
+    fig = Figure()
+    fig.subplots().plot([0.0, 1.0])
+    summary = {"fell": np.bool_(False), "ee_rms_cm": np.float64(2.5), "counts": np.arange(3)}
+    result = experiments.ExperimentResult("unit", summary, {}, fig)
+    path = experiments.save(result, tmp_path / "json", figure_directory=tmp_path / "png")
+    assert json.loads(path.read_text()) == {"fell": False, "ee_rms_cm": 2.5, "counts": [0, 1, 2]}
+    assert (tmp_path / "png" / "unit.png").stat().st_size > 1000

@@ -125,6 +125,8 @@ def plot(records: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
+    from wbmpc.plots import save_figure
+
     fig = Figure(figsize=(11, 4))
     ax1, ax2 = fig.subplots(1, 2)
     main = [r for r in records if r["nodes"] == max(r["nodes"] for r in records if not r["compiled"])]
@@ -169,8 +171,7 @@ def plot(records: list[dict], path: Path) -> None:
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path.name, path.parent)
 
 
 def main(argv: list[str] | None = None) -> list[dict]:

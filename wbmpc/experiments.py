@@ -43,6 +43,7 @@ from wbmpc.gait import make_gait
 from wbmpc.logs import json_default
 from wbmpc.mpc import MPCConfig, WholeBodyMPC
 from wbmpc.ocp import OCPSettings
+from wbmpc.plots import save_figure
 from wbmpc.pybullet_sim import Box, Payload, Wall
 from wbmpc.quick import quick_mode
 from wbmpc.robot import Robot, load_b1_z1
@@ -683,15 +684,19 @@ EXPERIMENTS = {
 }
 
 
-def save(result: ExperimentResult, directory: Path, log_directory: Path | None = None) -> Path:
-    """Write ``<name>.json`` (summary), ``<name>.png`` (figure) and optionally the runs' logs."""
+def save(
+    result: ExperimentResult,
+    directory: Path,
+    log_directory: Path | None = None,
+    figure_directory: Path | None = None,
+) -> Path:
+    """Write ``<name>.json`` (summary) to ``directory``, ``<name>.png`` (figure) to ``figure_directory``
+    (default ``data/output/sim``, git-ignored) and, if ``log_directory`` is given, the runs' logs."""
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"{result.name}.json"
     path.write_text(json.dumps(result.summary, indent=2, default=json_default))
     if result.figure is not None:
-        figures = REPO_ROOT / "data/output/sim"
-        figures.mkdir(parents=True, exist_ok=True)
-        result.figure.savefig(figures / f"{result.name}.png", dpi=120)
+        save_figure(result.figure, result.name, figure_directory or REPO_ROOT / "data/output/sim")
     if log_directory is not None:
         for label, run in result.runs.items():
             run.save(log_directory / f"{result.name}_{label}.npz")

@@ -198,6 +198,8 @@ def plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
+    from wbmpc.plots import save_figure
+
     fig = Figure(figsize=(12, 4.2))
     ax1, ax2 = fig.subplots(1, 2)
     labels = [r["label"].replace(" (", "\n(") for r in rows]
@@ -218,8 +220,7 @@ def plot(rows: list[dict], path: Path) -> None:
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path.name, path.parent)
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
