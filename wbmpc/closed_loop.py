@@ -20,13 +20,14 @@ from __future__ import annotations
 import math
 import platform
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pinocchio as pin
 
 from wbmpc.arm_task import ArmReference, heading_frame, velocity_command
 from wbmpc.disturbances import Disturbance, Kick, Push
+from wbmpc.gait import Gait, GaitSchedule
 from wbmpc.logs import RunLog, save_log
 from wbmpc.low_level import LowLevelController
 from wbmpc.mpc import Commands, MPCSolution, WholeBodyMPC
@@ -65,6 +66,10 @@ class ClosedLoopConfig:
             ``base_yaw_rate``, ``ee_velocity``, ``ee_force`` (values as the fields of the same names).
         ground_friction: Ground friction coefficient of the PyBullet plant.
         arm_gains: ``(kp, kd)`` of the arm joints if different from the legs' (e.g. a compliant arm).
+        gait: Gait or :class:`~wbmpc.gait.GaitSchedule` for this run (e.g.
+            ``parse_gait_schedule("stand:2,trot:6,stand:2")``), replacing the MPC's for its duration;
+            ``None`` keeps the MPC's. The one schedule decides the plant's contacts and the MPC's stage
+            contacts, evaluated in integer plant ticks.
     """
 
     duration: float = 10.0
@@ -90,8 +95,11 @@ class ClosedLoopConfig:
     command_schedule: Callable[[float], dict] | None = None
     ground_friction: float = 0.8
     arm_gains: tuple[float, float] | None = None
+    gait: Gait | GaitSchedule | None = None
 
     def __post_init__(self):
+        if self.gait is not None and not isinstance(self.gait, Gait | GaitSchedule):
+            raise ValueError(f"gait must be a Gait or GaitSchedule (wbmpc.gait), got {self.gait!r}")
         if not (
             self.delay in ("off", "measured") or (isinstance(self.delay, int | float) and self.delay >= 0)
         ):
@@ -156,6 +164,9 @@ class ClosedLoopLog:
     plan_tau: list = field(default_factory=list)
     plan_forces: list = field(default_factory=list)
     scene_positions: list = field(default_factory=list)
+    foot_height: list = field(default_factory=list)
+    plan_contact: list = field(default_factory=list)
+    hold: list = field(default_factory=list)
 
     SOLVE_COLUMNS = (
         "solve_t",
@@ -171,6 +182,8 @@ class ClosedLoopLog:
         "plan_v",
         "plan_tau",
         "plan_forces",
+        "plan_contact",
+        "hold",
     )
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -223,7 +236,19 @@ def run_closed_loop(
         The log, a summary dict (see :func:`summarize`) and whether the robot fell.
     """
     config = config or ClosedLoopConfig()
+    if config.gait is None:
+        return _run(mpc, config, q0, progress, keep_plans)
+    mpc_gait = mpc.config.gait
+    mpc.config = replace(mpc.config, gait=config.gait)  # one schedule for the MPC and the plant
+    try:
+        return _run(mpc, config, q0, progress, keep_plans)
+    finally:
+        mpc.config = replace(mpc.config, gait=mpc_gait)
+
+
+def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
     robot = mpc.robot
+    schedule = mpc.config.gait
     model, data = robot.model, robot.model.createData()
     n_steps, per_mpc, per_low = config.steps()
     plant = make_plant(robot, config)
@@ -255,7 +280,7 @@ def run_closed_loop(
     for step in range(n_steps):
         t = step * config.plant_dt
         q, v = state.q, state.v
-        contact = mpc.config.gait.contact(t)
+        contact = schedule.contact(t)
         if pending is not None and step >= pending[0]:
             low.update(pending[1])
             pending = None
@@ -316,6 +341,7 @@ def run_closed_loop(
             log.contact.append(contact)
             log.contact_sim.append(plant.foot_contacts() if pybullet else np.asarray(contact, bool))
             log.foot_forces.append(plant.contact_forces() if pybullet else plant.last_contact_forces)
+            log.foot_height.append(plant.foot_positions[:, 2] - robot.foot_radius)
             log.base_velocity_cmd.append(cmd["base_velocity"])
             log.ee_force_cmd.append(cmd["ee_force"])
             if ee_id is not None:  # only the end-effector frame is needed here
@@ -418,6 +444,8 @@ def _log_solve(log: ClosedLoopLog, plan: MPCSolution, keep_plans: bool, apply_t:
     log.plan_v.append(plan.v[:2].copy())
     log.plan_tau.append(plan.tau[0].copy())
     log.plan_forces.append(plan.forces[0].copy())
+    log.plan_contact.append(np.asarray(plan.contact[:, 0], bool))
+    log.hold.append(bool(plan.hold))
     log.solve_time.append(plan.solve_time)
     log.iterations.append(plan.iterations)
     log.success.append(plan.success)
@@ -528,4 +556,23 @@ def summarize(
     }
     if plant is not None:
         summary["contact_violations"] = {k: int(np.sum(v)) for k, v in plant.violation_counts.items()}
+        summary["contact_violations_counted_as"] = (
+            "plant steps x feet: stance foot pulling / outside the friction cone; swing foot more than "
+            "0.1 mm below the ground"
+        )
+    summary |= _contact_summary(mpc, arrays)
     return summary
+
+
+def _contact_summary(mpc: WholeBodyMPC, arrays: dict) -> dict:
+    """Swing-foot clearance and agreement of the MPC's first-stage contacts with the plant's schedule."""
+    out = {"holds": int(np.sum(arrays["hold"])) if arrays["hold"].size else 0}
+    if arrays["foot_height"].size:
+        swing = ~np.asarray(arrays["contact"], bool)
+        heights = arrays["foot_height"][swing]
+        out["swing_foot_min_height_m"] = float(heights.min()) if heights.size else None
+    if arrays["plan_contact"].size:
+        fresh = np.asarray(arrays["success"], bool) & ~np.asarray(arrays["fallback"], bool)
+        plant = mpc.config.gait.sample(arrays["solve_t"]).contact.T
+        out["node0_contact_mismatches"] = int(np.sum(np.any(arrays["plan_contact"] != plant, axis=1) & fresh))
+    return out

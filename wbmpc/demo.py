@@ -23,11 +23,19 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m wbmpc.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="b1_z1", help="built-in robot: b1_z1 (default) or b1")
-    parser.add_argument("--gait", default="trot", help="trot, walk, stand, pace, bound (default trot)")
+    parser.add_argument(
+        "--gait",
+        default="trot",
+        help="trot, walk, stand, pace, bound (default trot), or a schedule of gaits and durations [s] "
+        "such as stand:2,trot:6,stand:2 (the last gait goes on to the end of the run)",
+    )
     parser.add_argument("--period", type=float, default=0.8, help="gait period [s] (default 0.8)")
     parser.add_argument("--speed", type=float, default=0.2, help="forward base velocity [m/s] (default 0.2)")
     parser.add_argument(
-        "--duration", type=float, default=pick(full=10.0, quick=0.5), help="simulated time [s]"
+        "--duration",
+        type=float,
+        default=None,
+        help="simulated time [s] (default 10, or the schedule's total with --gait a:2,b:3)",
     )
     parser.add_argument("--solver", default="fatrop", choices=["fatrop", "ipopt"], help="NLP solver")
     parser.add_argument("--nodes", type=int, default=15, help="nodes including the terminal one (default 15)")
@@ -87,14 +95,24 @@ def print_summary(summary: dict) -> None:
 def main(argv: list[str] | None = None) -> dict:
     args = build_parser().parse_args(argv)
     from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
-    from wbmpc.gait import make_gait
+    from wbmpc.gait import make_gait, parse_gait_schedule
     from wbmpc.mpc import MPCConfig, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
     from wbmpc.robot import load
 
     robot = load(args.robot)
     print(robot.summary())
-    config = MPCConfig(gait=make_gait(args.gait, args.period), solver=args.solver, compiled=args.compiled)
+    if ":" in args.gait or "," in args.gait:
+        gait = parse_gait_schedule(args.gait, args.period)
+        for note in gait.notes:
+            print(f"gait schedule: {note}")
+        default_duration = gait.duration
+    else:
+        gait = make_gait(args.gait, args.period)
+        default_duration = 10.0
+    if args.duration is None:
+        args.duration = pick(full=default_duration, quick=0.5)
+    config = MPCConfig(gait=gait, solver=args.solver, compiled=args.compiled)
     start = time.perf_counter()
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=args.nodes), config)
     print(

@@ -1,11 +1,22 @@
 """Gait schedules, swing-foot vertical velocity reference and nominal contact-force distribution.
 
-Foot order everywhere in wbmpc is the Pinocchio leg order FOOT_NAMES = ("FL", "FR", "RL", "RR"):
+Foot order everywhere in wbmpc is the Pinocchio leg order FOOT_NAMES = ("FL", "FR", "RL", "RR")
+SCHEDULE_TICK = 5e-4  # [s] resolution of every contact schedule: the default plant step:
 front-left, front-right, rear-left, rear-right. Arrays indexed by foot have that order on axis 0.
 
 A gait is periodic with period P [s]. Foot i swings while its local phase
     phi_i(t) = (t / P - offset_i) mod 1
 is below the swing fraction sigma; its swing phase (fraction of the swing elapsed) is then phi_i / sigma.
+
+Contact schedules are evaluated in integer ticks of the plant step (``SCHEDULE_TICK`` = 0.5 ms by
+default), never in floating-point phases: a time t [s] becomes the tick k = round(t / tick), the period,
+offsets and swing duration are whole numbers of ticks, and the phase is an integer modulo. A contact switch
+is therefore one exact tick: the MPC's node 0 (sampled at the measurement time), the low level and the
+plant (sampled at its own steps) can never put it on different sides of an MPC tick, which floating-point
+``mod(t / P - offset, 1)`` did whenever a switch fell on a tick.
+
+:class:`GaitSchedule` strings gaits together in time (stand, then trot, then stand); a single
+:class:`Gait` is a one-segment schedule. Both offer the same ``sample`` / ``contact`` / ``swing_phase``.
 """
 
 from __future__ import annotations
@@ -18,6 +29,7 @@ import casadi as ca
 import numpy as np
 
 FOOT_NAMES = ("FL", "FR", "RL", "RR")
+SCHEDULE_TICK = 5e-4  # [s] resolution of every contact schedule: the default plant step
 FRONT = np.array([True, True, False, False])  # FL, FR are the front feet
 
 
@@ -33,11 +45,31 @@ def _finite(name: str, value, positive: bool = False) -> float:
 
 class GaitSample(NamedTuple):
     """Gait sampled at n times: contact (4, n) bool (True = stance), swing_phase (4, n) in [0, 1),
-    n_contacts (n,) int."""
+    n_contacts (n,) int, swing_duration (4, n) [s] of the swing in progress (0 for stance feet)."""
 
     contact: np.ndarray
     swing_phase: np.ndarray
     n_contacts: np.ndarray
+    swing_duration: np.ndarray
+
+
+def to_ticks(times, tick: float = SCHEDULE_TICK) -> np.ndarray:
+    """Times [s] (1-D array) as the nearest integer ticks of ``tick`` [s] (int64)."""
+    times = np.asarray(times, dtype=float)
+    if times.ndim != 1 or not np.all(np.isfinite(times)):
+        raise ValueError(f"times must be a finite 1-D array [s], got shape {times.shape}")
+    return np.rint(times / tick).astype(np.int64)
+
+
+def _whole_ticks(name: str, seconds: float, tick: float) -> int:
+    """``seconds`` as a whole number of ticks, or ValueError naming the nearest valid value."""
+    n = round(seconds / tick)
+    if abs(n * tick - seconds) > 1e-9 * max(1.0, abs(seconds)):
+        raise ValueError(
+            f"{name} = {seconds} s is not a multiple of the schedule tick {tick * 1e3:g} ms "
+            f"(the plant step); use e.g. {max(n, 1) * tick:.6g} s"
+        )
+    return n
 
 
 @dataclass(frozen=True)
@@ -49,26 +81,36 @@ class Gait:
         period: Cycle duration P [s], > 0.
         swing_fraction: Swing duration / period, in [0, 1) (0: the feet never swing).
         offsets: Per-foot phase in [0, 1) of the cycle at which the swing starts, FOOT_NAMES order.
+        tick: Schedule resolution [s] (the plant step); the period must be a whole number of ticks, the
+            offsets and the swing duration are rounded to whole ticks.
     """
 
     name: str
     period: float
     swing_fraction: float
     offsets: tuple[float, float, float, float]
+    tick: float = SCHEDULE_TICK
 
     def __post_init__(self):
         _finite("period", self.period, positive=True)
+        _finite("tick", self.tick, positive=True)
         if not 0.0 <= _finite("swing_fraction", self.swing_fraction) < 1.0:
             raise ValueError(f"swing_fraction must be in [0, 1), got {self.swing_fraction}")
         offsets = np.asarray(self.offsets, dtype=float)
         if offsets.shape != (4,) or not np.all((offsets >= 0.0) & (offsets < 1.0)):
             raise ValueError(f"offsets must be 4 phases in [0, 1), got {self.offsets!r}")
         object.__setattr__(self, "offsets", tuple(float(o) for o in offsets))
+        period_ticks = _whole_ticks("period", self.period, self.tick)
+        object.__setattr__(self, "_period_ticks", period_ticks)
+        object.__setattr__(self, "_swing_ticks", round(self.swing_fraction * period_ticks))
+        object.__setattr__(
+            self, "_offset_ticks", np.rint(offsets * period_ticks).astype(np.int64) % period_ticks
+        )
 
     @property
     def swing_duration(self) -> float:
-        """Swing duration T = swing_fraction * period [s]."""
-        return self.swing_fraction * self.period
+        """Swing duration T = swing_fraction * period [s] (in whole ticks)."""
+        return self._swing_ticks * self.tick
 
     @property
     def n_stance_nominal(self) -> int:
@@ -77,16 +119,23 @@ class Gait:
 
     def sample(self, times) -> GaitSample:
         """Contact flags and swing phases of the 4 feet at each of the given times [s] (1-D array)."""
-        times = np.asarray(times, dtype=float)
-        if times.ndim != 1 or not np.all(np.isfinite(times)):
-            raise ValueError(f"times must be a finite 1-D array [s], got shape {times.shape}")
-        local = np.mod(times[None, :] / self.period - np.asarray(self.offsets)[:, None], 1.0)
-        swing = local < self.swing_fraction  # always False for swing_fraction 0
-        phase = np.zeros_like(local)
-        # local < sigma, but the rounded quotient may still hit 1.0: clip to keep the phase in [0, 1).
-        phase[swing] = np.minimum(local[swing] / self.swing_fraction, np.nextafter(1.0, 0.0))
+        return self.sample_ticks(to_ticks(times, self.tick))
+
+    def sample_ticks(self, ticks) -> GaitSample:
+        """:meth:`sample` at integer ticks (time = tick * self.tick, the cycle starting at tick 0)."""
+        local = np.mod(
+            np.asarray(ticks, dtype=np.int64)[None, :] - self._offset_ticks[:, None], self._period_ticks
+        )
+        swing = local < self._swing_ticks  # always False for swing_fraction 0
+        phase = np.where(swing, local / max(self._swing_ticks, 1), 0.0)
         contact = ~swing
-        return GaitSample(contact, phase, contact.sum(axis=0))
+        duration = np.where(swing, self.swing_duration, 0.0)
+        return GaitSample(contact, phase, contact.sum(axis=0), duration)
+
+    def mid_swing(self, tick: int) -> bool:
+        """Whether a foot is in the air both just before and at ``tick`` (a schedule may not switch there)."""
+        swing = ~self.sample_ticks(np.array([tick - 1, tick])).contact
+        return bool(np.any(swing[:, 0] & swing[:, 1]))
 
     def contact(self, t: float) -> np.ndarray:
         """Contact flags (4,) bool at time t [s], True = stance."""
@@ -106,12 +155,143 @@ _GAITS = {  # name -> (swing_fraction, swing start phase per foot FL, FR, RL, RR
 }
 
 
-def make_gait(name: str, period: float = 0.8) -> Gait:
-    """Gait `name` in ("trot", "walk", "stand", "pace", "bound") with cycle period [s]."""
+def make_gait(name: str, period: float = 0.8, tick: float = SCHEDULE_TICK) -> Gait:
+    """Gait `name` in ("trot", "walk", "stand", "pace", "bound") with cycle period [s] (a whole number of
+    schedule ticks [s])."""
     if name not in _GAITS:
         raise ValueError(f"name: unknown gait {name!r}, known gaits: {sorted(_GAITS)}")
     swing_fraction, offsets = _GAITS[name]
-    return Gait(name, _finite("period", period, positive=True), swing_fraction, offsets)
+    return Gait(name, _finite("period", period, positive=True), swing_fraction, offsets, tick)
+
+
+class GaitSchedule:
+    """Gaits strung together in time: e.g. stand 2 s, trot 6 s, stand (the last gait goes on).
+
+    Segment j runs its gait from its start tick, its cycle restarting there (a trot after a stand lifts its
+    first pair at the switch). A switch never cuts a swing: a segment whose nominal end falls while a foot
+    is in the air (in swing just before and at that tick) is extended to the next tick where no foot is,
+    and :attr:`notes` says so. The MPC samples the schedule on its stage times, so its preview sees the
+    coming gait before the switch.
+
+    Args:
+        segments: ``(gait, duration [s])`` pairs; the last duration only counts for :attr:`duration`.
+        tick: Schedule resolution [s] (the plant step); every gait must share it.
+    """
+
+    def __init__(self, segments, tick: float = SCHEDULE_TICK):
+        segments = list(segments)
+        if not segments:
+            raise ValueError("GaitSchedule needs at least one (gait, duration) segment")
+        self.tick = _finite("tick", tick, positive=True)
+        starts, notes, gaits, durations = [0], [], [], []
+        for j, segment in enumerate(segments):
+            try:
+                gait, duration = segment
+            except (TypeError, ValueError) as err:
+                raise ValueError(f"segment {j} must be a (gait, duration) pair, got {segment!r}") from err
+            if not isinstance(gait, Gait):
+                raise ValueError(f"segment {j}: {gait!r} is not a Gait (see wbmpc.gait.make_gait)")
+            if abs(gait.tick - self.tick) > 1e-15:
+                raise ValueError(
+                    f"segment {j}: gait tick {gait.tick} s differs from the schedule's {self.tick} s"
+                )
+            duration = _finite(f"segment {j} ({gait.name}) duration", duration, positive=True)
+            gaits.append(gait)
+            durations.append(duration)
+            if j == len(segments) - 1:
+                break
+            nominal = starts[-1] + max(1, round(duration / self.tick))
+            end = nominal
+            while gait.mid_swing(end - starts[-1]) and end - nominal < gait._period_ticks:
+                end += 1
+            if end != nominal:
+                notes.append(
+                    f"{gait.name} segment {j} extended by {(end - nominal) * self.tick:.4g} s to "
+                    f"t = {end * self.tick:.4g} s so that no swing is cut by the switch to "
+                    f"{segments[j + 1][0].name}"
+                )
+            starts.append(end)
+        self.gaits = tuple(gaits)
+        self.start_ticks = np.asarray(starts, dtype=np.int64)
+        self.notes = tuple(notes)
+        self.duration = float(self.start_ticks[-1] * self.tick + durations[-1])
+
+    @property
+    def name(self) -> str:
+        """``"stand:2+trot:6+stand:2"`` style (segment durations after any extension)."""
+        ends = [*(self.start_ticks[1:] * self.tick), self.duration]
+        starts = self.start_ticks * self.tick
+        return "+".join(f"{g.name}:{e - s:g}" for g, s, e in zip(self.gaits, starts, ends, strict=True))
+
+    @property
+    def start_times(self) -> np.ndarray:
+        """Start time [s] of each segment."""
+        return self.start_ticks * self.tick
+
+    def segment_index(self, times) -> np.ndarray:
+        """Index of the segment in force at each time [s]."""
+        ticks = to_ticks(times, self.tick)
+        return np.clip(np.searchsorted(self.start_ticks, ticks, side="right") - 1, 0, len(self.gaits) - 1)
+
+    def gait_at(self, t: float) -> Gait:
+        """The gait in force at time t [s]."""
+        return self.gaits[int(self.segment_index(np.array([_finite("t", t)]))[0])]
+
+    def sample(self, times) -> GaitSample:
+        """Contact flags, swing phases and swing durations of the 4 feet at the given times [s]."""
+        ticks = to_ticks(times, self.tick)
+        index = np.clip(np.searchsorted(self.start_ticks, ticks, side="right") - 1, 0, len(self.gaits) - 1)
+        n = ticks.size
+        contact, phase, duration = np.ones((4, n), bool), np.zeros((4, n)), np.zeros((4, n))
+        for j in np.unique(index):
+            cols = index == j
+            s = self.gaits[j].sample_ticks(ticks[cols] - self.start_ticks[j])
+            contact[:, cols], phase[:, cols], duration[:, cols] = s.contact, s.swing_phase, s.swing_duration
+        return GaitSample(contact, phase, contact.sum(axis=0), duration)
+
+    def contact(self, t: float) -> np.ndarray:
+        """Contact flags (4,) bool at time t [s], True = stance."""
+        return self.sample(np.array([_finite("t", t)])).contact[:, 0]
+
+    def swing_phase(self, t: float) -> np.ndarray:
+        """Swing phase (4,) at time t [s], 0 for stance feet."""
+        return self.sample(np.array([_finite("t", t)])).swing_phase[:, 0]
+
+    def __repr__(self) -> str:
+        return f"GaitSchedule({self.name!r}, tick={self.tick})"
+
+
+def parse_gait_schedule(spec: str, period: float = 0.8, tick: float = SCHEDULE_TICK) -> GaitSchedule:
+    """A schedule from ``"stand:2,trot:6,stand:2"`` (gait names and durations [s]; a lone name such as
+    ``"trot"`` is one segment that goes on), every gait with cycle ``period`` [s]."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"gait schedule must be a string like 'stand:2,trot:6,stand:2', got {spec!r}")
+    segments = []
+    for item in spec.split(","):
+        name, sep, duration = item.strip().partition(":")
+        if not sep:
+            if "," in spec:
+                raise ValueError(f"gait schedule item {item!r} needs a duration, e.g. '{name}:2'")
+            duration = "inf"
+        try:
+            seconds = float(duration)
+        except ValueError as err:
+            raise ValueError(
+                f"gait schedule item {item!r}: duration {duration!r} is not a number [s]"
+            ) from err
+        if seconds == float("inf"):
+            seconds = 1e9  # a single gait that goes on
+        segments.append((make_gait(name.strip(), period, tick), seconds))
+    return GaitSchedule(segments, tick)
+
+
+def as_schedule(gait: Gait | GaitSchedule) -> GaitSchedule:
+    """``gait`` as a schedule (a lone gait is one segment that goes on)."""
+    if isinstance(gait, GaitSchedule):
+        return gait
+    if isinstance(gait, Gait):
+        return GaitSchedule([(gait, 1e9)], gait.tick)
+    raise ValueError(f"expected a Gait or GaitSchedule (see wbmpc.gait), got {gait!r}")
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ Columns written by :func:`wbmpc.closed_loop.run_closed_loop` (units SI, world ax
 ``signals/contact_plan``  contact flags of the gait schedule (T, 4)
 ``signals/contact_sim``   feet touching the ground in the simulator (T, 4)
 ``signals/foot_forces``   ground reaction forces measured by the simulator [N] (T, 4, 3)
+``signals/foot_height``   height of each foot sphere's bottom above the ground [m] (T, 4) (< 0: below it)
 ``signals/ee_position``   end-effector position [m] (T, 3); ``ee_reference`` its reference (NaN if none)
 ``signals/ee_force_sim``  force of the environment on the end effector measured by the simulator [N]
 ``signals/base_velocity_cmd``  commanded base linear velocity [m/s] (T, 3), heading frame
@@ -33,6 +34,8 @@ Columns written by :func:`wbmpc.closed_loop.run_closed_loop` (units SI, world ax
 ``solves/solve_time``  wall time of the solve [s]; ``iterations``; ``success``; ``fallback``;
                        ``violation`` (max constraint violation); ``status`` (solver message)
 ``solves/plan_q``, ``plan_v``, ``plan_tau``, ``plan_forces``  first nodes of each plan (S, n, ...)
+``solves/plan_contact``  stance flags the plan used on its first stage (S, 4)
+``solves/hold``        the static hold was applied (no converged plan existed yet)
 =====================  =========================================================================
 """
 

@@ -16,7 +16,14 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.gait import Gait, SwingParams, default_force_distribution, make_gait, swing_vertical_velocity
+from wbmpc.gait import (
+    Gait,
+    GaitSchedule,
+    SwingParams,
+    default_force_distribution,
+    make_gait,
+    swing_vertical_velocity,
+)
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.robot import Robot
 from wbmpc.statics import static_equilibrium
@@ -96,7 +103,8 @@ class MPCConfig:
     """Runtime configuration (every field can change between solves without a rebuild, except solver).
 
     Attributes:
-        gait: Gait schedule (see :func:`wbmpc.gait.make_gait`).
+        gait: Gait (see :func:`wbmpc.gait.make_gait`) or a :class:`wbmpc.gait.GaitSchedule` of gaits in
+            time (stand, trot, stand); the same object decides the plant's contacts in a closed loop.
         swing: Swing-foot spline parameters.
         dt_min, dt_max: First and last time step [s] of the geometric grid (equal: uniform grid).
         mu: Friction coefficient of the cone constraint.
@@ -116,7 +124,7 @@ class MPCConfig:
         retry_max_iter: Iteration cap of that retry.
     """
 
-    gait: Gait = field(default_factory=lambda: make_gait("trot", 0.8))
+    gait: Gait | GaitSchedule = field(default_factory=lambda: make_gait("trot", 0.8))
     swing: SwingParams = field(default_factory=SwingParams)
     dt_min: float = 0.01
     dt_max: float = 0.1
@@ -149,8 +157,10 @@ class MPCConfig:
             raise ValueError(
                 "MPCConfig.compiled needs solver='fatrop' (the library holds Fatrop's functions)"
             )
-        if not isinstance(self.gait, Gait):
-            raise ValueError(f"MPCConfig.gait must be a Gait (see wbmpc.gait.make_gait), got {self.gait!r}")
+        if not isinstance(self.gait, Gait | GaitSchedule):
+            raise ValueError(
+                f"MPCConfig.gait must be a Gait or GaitSchedule (see wbmpc.gait.make_gait), got {self.gait!r}"
+            )
 
 
 @dataclass
@@ -167,7 +177,12 @@ class MPCSolution:
         contact: Contact flags (4, N-1).
         success: Whether the solver converged. iterations, solve_time [s], status: solver report.
         constraint_violation: Max bound violation of the constraints at the returned point.
-        fallback: True if this is the previous plan re-used after a failed solve.
+        fallback: True if this is not a new converged plan: the previous plan re-used after a failed
+            solve, or, when no solve has converged yet, the static hold (``hold``).
+        hold: True for the static hold: the measured pose held with static-equilibrium torques, returned
+            when a solve fails before any converged plan exists (never the unconverged iterate).
+        reason: Why the solve failed (empty on success).
+        findings: Physical prechecks that flagged the commands or the state before this solve.
         w, lam_g: Raw primal and constraint-multiplier vectors (for warm starts).
     """
 
@@ -185,6 +200,9 @@ class MPCSolution:
     status: str
     constraint_violation: float
     fallback: bool = False
+    hold: bool = False
+    reason: str = ""
+    findings: tuple = ()
     w: np.ndarray | None = None
     lam_g: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
@@ -210,7 +228,7 @@ class WholeBodyMPC:
         self.n_nodes = self.ocp.n_nodes
         self._solvers = {}
         self.previous: MPCSolution | None = None
-        self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0}
+        self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0, "holds": 0}
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.last_inputs: dict | None = None
@@ -280,17 +298,17 @@ class WholeBodyMPC:
         t_nodes = node_times(dts, t)[:-1]
         sample = cfg.gait.sample(t_nodes)
         contact = sample.contact.astype(float)
-        swing_vz = np.where(
-            sample.contact,
-            0.0,
-            swing_vertical_velocity(
-                sample.swing_phase,
-                cfg.gait.swing_duration or 1.0,
+        swing_vz = np.zeros_like(sample.swing_phase)
+        swinging = ~sample.contact
+        for duration in np.unique(sample.swing_duration[swinging]):  # one per gait of a schedule
+            mask = swinging & (sample.swing_duration == duration)
+            swing_vz[mask] = swing_vertical_velocity(
+                sample.swing_phase[mask],
+                duration,
                 cfg.swing.height,
                 cfg.swing.v_liftoff,
                 cfg.swing.v_touchdown,
-            ),
-        )
+            )
         ratio = robot.front_force_ratio if cfg.front_force_ratio is None else cfg.front_force_ratio
         # The vertical targets carry the weight plus the commanded end-effector load.
         weight = robot.mass * robot.gravity - commands.ee_force[2]
@@ -433,13 +451,49 @@ class WholeBodyMPC:
                 report["solve_time"], report["iterations"] = report2["solve_time"], report2["iterations"]
         if not report["success"]:
             self.stats["failures"] += 1
+            # Only converged plans reach the low level or become the warm start.
             if self.previous is not None:
-                return replace(self.previous, fallback=True, **report)
-            if w is None:
-                w = x0
+                return replace(self.previous, fallback=True, hold=False, **report)
+            self.stats["holds"] += 1
+            return self.hold_plan(q_hat, t, params, report)
         solution = self._solution(w, lam_g, q_hat, t, p, params, report)
         self.previous = solution
         return solution
+
+    def hold_plan(self, q_hat: np.ndarray, t: float, params: dict, report: dict | None = None) -> MPCSolution:
+        """The safe command while no converged plan exists: hold the measured pose at rest.
+
+        Every node is the measured configuration with zero velocity and acceleration; the torques are the
+        static-equilibrium torques of that pose on the scheduled stance feet (all four feet if they
+        cannot hold it), with the commanded end-effector force.
+        """
+        robot, N = self.robot, self.n_nodes
+        ee_force = params["ee_force"] if robot.has_arm else None
+        stance = params["contact"][:, 0] > 0.5
+        try:
+            eq = static_equilibrium(robot, q_hat, stance, ee_force=ee_force)
+        except ValueError:
+            eq = static_equilibrium(robot, q_hat, np.ones(robot.n_feet, bool), ee_force=ee_force)
+        forces = eq.forces if not robot.has_arm else np.vstack([eq.forces, params["ee_force"]])
+        report = report or {}
+        return MPCSolution(
+            t=t,
+            dts=self.time_steps(),
+            q=np.tile(q_hat, (N, 1)),
+            v=np.zeros((N, robot.nv)),
+            a=np.zeros((N - 1, robot.nv)),
+            forces=np.tile(forces, (N - 1, 1, 1)),
+            tau=np.tile(eq.tau, (self.ocp.settings.n_tau_nodes, 1)),
+            contact=params["contact"] > 0.5,
+            success=False,
+            iterations=report.get("iterations", -1),
+            solve_time=report.get("solve_time", 0.0),
+            status=report.get("status", "hold"),
+            constraint_violation=report.get("constraint_violation", np.inf),
+            fallback=True,
+            hold=True,
+            timings=report.get("timings", {}),
+        )
 
     def _run_solver(
         self, solver: ca.Function, args: dict

@@ -1,0 +1,188 @@
+"""One contact schedule in integer plant ticks, shared by the MPC's stages and the plant; gait transitions;
+no failed plan reaches the low level (the static hold)."""
+
+import numpy as np
+import pytest
+
+from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.gait import GaitSchedule, make_gait, parse_gait_schedule, to_ticks
+from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.ocp import OCPSettings
+from wbmpc.quick import pick
+from wbmpc.robot import load_b1_z1
+from wbmpc.statics import static_equilibrium
+
+PLANT_DT, MPC_DT = 0.0005, 0.0125
+MIN_SWING_HEIGHT = -0.005  # [m] the deepest a swing foot may go below the ground
+# A swing foot reaches the ground up to ~8 ms (16 plant steps) before its scheduled touchdown (the Euler
+# discretisation of the vertical-velocity spline, about 1.2 mm deep); more than 20 steps per touchdown and
+# foot would mean a foot left in the ground as before the fix (5,875 steps in the 10 s demo).
+MAX_PENETRATING_STEPS_PER_TOUCHDOWN = 20
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_b1_z1()
+
+
+def mpc_ticks(duration):
+    return np.arange(round(duration / MPC_DT)) * MPC_DT
+
+
+def test_every_trot_switch_is_one_exact_tick_of_the_plant():
+    """On every MPC tick of a 10 s trot, node 0's contacts hold over the whole first stage (10 ms, 20 plant
+    steps): a switch is never split between the MPC and the plant. The floating-point phase failed at
+    t = 1.2, 2.4, 4.8 and 9.6 s, where the switch fell on a tick."""
+    gait = make_gait("trot", 0.8)
+    ticks = mpc_ticks(10.0)
+    steps = ticks[:, None] + PLANT_DT * np.arange(20)[None, :]  # plant steps of stage 0
+    contact = gait.sample(steps.ravel()).contact.reshape(4, *steps.shape)
+    assert np.all(contact == contact[:, :, :1])
+    switches = np.flatnonzero(np.any(contact[:, 1:, 0] != contact[:, :-1, 0], axis=0)) + 1
+    np.testing.assert_allclose(ticks[switches], 0.4 * np.arange(1, 25), atol=1e-12)
+
+
+def test_tick_arithmetic_is_exact_over_long_runs():
+    gait = make_gait("trot", 0.8)
+    t = np.arange(0, 3600.0, 0.4)  # an hour of switches
+    sample = gait.sample(t)
+    # At a switch instant the new pair is already lifting (phase 0) and the old one has landed.
+    assert np.all(sample.contact.sum(axis=0) == 2)
+    np.testing.assert_array_equal(sample.swing_phase[~sample.contact], 0.0)
+    np.testing.assert_array_equal(to_ticks(t), np.round(t / PLANT_DT).astype(np.int64))
+
+
+def test_mpc_node0_contacts_equal_the_plants_on_every_tick(robot):
+    """The MPC's stage contacts come from the same schedule as the plant's: node 0 equals the plant's
+    contacts at every MPC tick of a 10 s trot and of a stand-trot-stand schedule."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("trot")))
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    from wbmpc.mpc import Commands
+
+    for gait in (make_gait("trot"), parse_gait_schedule("stand:2,trot:6,stand:2")):
+        mpc.config.gait = gait
+        for t in mpc_ticks(10.0):
+            node0 = mpc.parameters(q, v, t, Commands())["contact"][:, 0] > 0.5
+            np.testing.assert_array_equal(node0, gait.contact(t), err_msg=f"t = {t}")
+
+
+def test_schedule_sees_the_coming_gait_and_never_cuts_a_swing():
+    schedule = parse_gait_schedule("stand:2,trot:5.9,stand:2")
+    assert schedule.notes and "extended by 0.1 s" in schedule.notes[0]
+    np.testing.assert_allclose(schedule.start_times, [0.0, 2.0, 8.0])
+    assert schedule.name == "stand:2+trot:6+stand:2" and schedule.duration == pytest.approx(10.0)
+    c = schedule.sample(np.array([1.9995, 2.0, 7.9995, 8.0]))
+    assert c.contact[:, 0].all() and not c.contact[[0, 3], 1].any()  # the trot starts lifting FL + RR
+    assert not c.contact[[0, 3], 2].any() and c.contact[:, 3].all()  # FL + RR land, then stand
+    # A swing in progress is never cut: no foot goes from swing straight to stance mid-swing.
+    t = np.arange(0, 10.0, PLANT_DT)
+    s = schedule.sample(t)
+    landing = s.contact[:, 1:] & ~s.contact[:, :-1]
+    assert np.all(s.swing_phase[:, :-1][landing] > 0.99)
+    # The durations of the swings follow the gait in force.
+    np.testing.assert_allclose(np.unique(s.swing_duration), [0.0, 0.4])
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("", "schedule must be a string"),
+        ("stand:2,trot", "needs a duration"),
+        ("stand:x", "is not a number"),
+        ("stand:2,gallop:1", "unknown gait"),
+        ("stand:-1,trot:1", "duration must be finite and > 0"),
+    ],
+)
+def test_bad_schedules_name_the_problem(spec, message):
+    with pytest.raises(ValueError, match=message):
+        parse_gait_schedule(spec)
+
+
+def test_a_period_off_the_tick_grid_is_refused():
+    with pytest.raises(ValueError, match="not a multiple of the schedule tick"):
+        make_gait("trot", 0.80025)
+    with pytest.raises(ValueError, match="is not a Gait"):
+        GaitSchedule([("trot", 1.0)])
+
+
+def _penetration_checks(result, n_touchdowns):
+    s = result.summary
+    assert not result.fell
+    assert s["node0_contact_mismatches"] == 0
+    assert s["swing_foot_min_height_m"] > MIN_SWING_HEIGHT, s["swing_foot_min_height_m"]
+    assert s["contact_violations"]["penetrating"] <= MAX_PENETRATING_STEPS_PER_TOUCHDOWN * max(
+        n_touchdowns, 1
+    )
+
+
+def test_trot_keeps_swing_feet_out_of_the_ground(robot):
+    """Closed-loop trot through the switch ticks that failed before (1.2 and 2.4 s): no swing foot below
+    -5 mm, node 0 equals the plant's contacts, and no iteration spike at the switches (was 11 to 17)."""
+    duration = pick(full=10.0, quick=2.5)
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("trot")))
+    result = run_closed_loop(mpc, ClosedLoopConfig(duration=duration), progress=False)
+    touchdowns = 2 * int(duration / 0.4)
+    _penetration_checks(result, touchdowns)
+    assert result.summary["iterations_max"] <= 10
+
+
+def test_stand_trot_stand_transitions_on_mpc_ticks(robot):
+    """A stand -> trot switch and a trot -> stand switch, both on MPC ticks, in one run: no fall, swing feet
+    out of the ground, the MPC's preview already planning the trot before it starts."""
+    schedule = parse_gait_schedule(pick(full="stand:1,trot:4,stand:1", quick="stand:0.5,trot:1.2,stand:0.5"))
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand")))
+    loop = ClosedLoopConfig(duration=schedule.duration, gait=schedule, base_velocity=(0.1, 0.0, 0.0))
+    result = run_closed_loop(mpc, loop, keep_plans=True, progress=False)
+    _penetration_checks(result, 2 * round((schedule.start_times[2] - schedule.start_times[1]) / 0.4))
+    assert mpc.config.gait.name == "stand"  # the run's schedule replaced the MPC's only for the run
+    # The plan computed one tick before the trot starts already lifts FL + RR from its second stage on.
+    t_switch = schedule.start_times[1]
+    before = next(p for p in result.log.plans if abs(p.t - (t_switch - MPC_DT)) < 1e-9)
+    assert before.contact[:, 0].all() and not before.contact[[0, 3], 1:].all()
+    assert result.summary["gait"] == schedule.name
+
+
+# ------------------------------------------------------------------------------------ failed first solve
+def test_a_failed_first_solve_returns_the_static_hold(robot):
+    """An unconverged first iterate is never the plan: the static hold is, and it is not a warm start."""
+    mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04, cold_max_iter=1)
+    )
+    q = robot.q_nominal
+    plan = mpc.solve(q, np.zeros(robot.nv), t=0.0)
+    assert not plan.success and plan.fallback and plan.hold
+    assert mpc.previous is None and mpc.stats["holds"] == 1
+    eq = static_equilibrium(robot, q, np.ones(4, bool), ee_force=np.zeros(3))
+    np.testing.assert_allclose(plan.tau[0], eq.tau, atol=1e-9)
+    np.testing.assert_allclose(plan.q, np.tile(q, (mpc.n_nodes, 1)))
+    assert not np.any(plan.v) and not np.any(plan.a)
+
+
+def test_closed_loop_holds_until_the_first_converged_plan(robot, monkeypatch):
+    """The first three solves fail (injected): the loop applies the static hold, says so once, keeps
+    standing, and then runs on converged plans."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
+    real = mpc._solver
+    calls = {"n": 0}
+
+    def failing_first(cold, max_iter=None):
+        calls["n"] += 1
+        if calls["n"] <= 3:
+
+            def solve(**kwargs):
+                raise RuntimeError("injected failure")
+
+            return solve
+        return real(cold, max_iter)
+
+    monkeypatch.setattr(mpc, "_solver", failing_first)
+    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.25, arm_reference=None), progress=False)
+    log = result.log.arrays()
+    assert not result.fell
+    np.testing.assert_array_equal(log["hold"][:3], True)
+    assert not log["hold"][3:].any() and log["success"][3:].all()
+    assert result.summary["holds"] == 3
+    eq = static_equilibrium(robot, robot.q_nominal, np.ones(4, bool), ee_force=np.zeros(3))
+    np.testing.assert_allclose(log["plan_tau"][0], eq.tau, atol=1e-9)
+    q = log["q"]
+    assert np.max(np.abs(q[:, 2] - q[0, 2])) < 0.01  # held, not collapsed
