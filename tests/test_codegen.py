@@ -1,16 +1,32 @@
 """Generated NLP functions: exact derivatives, node-independent code size, compiled solve, cache."""
 
+import os
+import signal
+import subprocess
+import sys
+import time
+
 import casadi as ca
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from wbmpc import codegen
 from wbmpc.gait import make_gait
 from wbmpc.mpc import MPCConfig, WholeBodyMPC
 from wbmpc.ocp import OCP, OCPSettings
-from wbmpc.robot import load_b1, load_b1_z1
+from wbmpc.robot import (
+    B1_Z1_EE_FRAME,
+    B1_Z1_LOCKED_JOINTS,
+    UNITREE_FOOT_FRAMES,
+    example_robot_data_dir,
+    load_b1,
+    load_b1_z1,
+    load_robot,
+)
 
 FLAGS = ("-O0",)  # quick to compile in CI; the benchmark uses the default -O1
+SMALL = OCPSettings(n_nodes=3, n_tau_nodes=1)
 
 
 @pytest.fixture(scope="module")
@@ -79,20 +95,24 @@ def test_stage_code_is_not_repeated_per_node(tmp_path):
     assert per_node < 0.02 * sizes[0], sizes
 
 
-def test_compiled_solver_matches_in_process(shared_cache, monkeypatch):
-    monkeypatch.setenv("WBMPC_CACHE_DIR", str(shared_cache))
-    robot = load_b1()
-    settings = OCPSettings(n_nodes=3, n_tau_nodes=1)
+def _solve_in_process_and_compiled(robot, cache, monkeypatch):
+    """The same stand solve in process and with the compiled library of ``cache``."""
+    monkeypatch.setenv("WBMPC_CACHE_DIR", str(cache))
     plans = []
     for compiled in (False, True):
         config = MPCConfig(gait=make_gait("stand"), compiled=compiled, compile_flags=FLAGS, dt_max=0.02)
-        mpc = WholeBodyMPC(robot, settings, config)
+        mpc = WholeBodyMPC(robot, SMALL, config)
         mpc.verbose = False
         plans.append(mpc.solve(robot.q_nominal, np.zeros(robot.nv)))
     in_process, compiled = plans
     assert in_process.success and compiled.success
     assert compiled.iterations == in_process.iterations
     np.testing.assert_allclose(compiled.w, in_process.w, atol=1e-8)
+    return mpc
+
+
+def test_compiled_solver_matches_in_process(shared_cache, monkeypatch):
+    mpc = _solve_in_process_and_compiled(load_b1(), shared_cache, monkeypatch)
     stats = mpc._solver(cold=True).stats()
     assert list(stats["nu"]) == mpc.ocp.stage_sizes()["nu"]  # Fatrop found the stages in the library too
 
@@ -117,3 +137,203 @@ def test_cache_reuses_rebuilds_on_change_and_survives_truncation(small_ocp, tmp_
 def test_compiled_needs_fatrop():
     with pytest.raises(ValueError, match="compiled needs solver='fatrop'"):
         MPCConfig(solver="ipopt", compiled=True)
+
+
+# --- the cache key covers the numeric model -----------------------------------------------------------------
+def _move_frame(robot, name, offset):
+    frame = robot.model.frames[robot.model.getFrameId(name)]
+    frame.placement = pin.SE3(frame.placement.rotation, frame.placement.translation + np.asarray(offset))
+
+
+def _edit_inertia(robot, joint, mass=0.0, lever=(0.0, 0.0, 0.0), scale=1.0):
+    j = robot.model.getJointId(joint)
+    old = robot.model.inertias[j]
+    robot.model.inertias[j] = pin.Inertia(old.mass + mass, old.lever + np.asarray(lever), scale * old.inertia)
+
+
+def _move_joint(robot, joint, offset):
+    j = robot.model.getJointId(joint)
+    old = robot.model.jointPlacements[j]
+    robot.model.jointPlacements[j] = pin.SE3(old.rotation, old.translation + np.asarray(offset))
+
+
+def _set_gravity(robot, g):
+    robot.model.gravity = pin.Motion(np.array([0.0, 0.0, -g]), np.zeros(3))
+
+
+def _b1_z1_locked_at(joint5):
+    """B1 + Z1 with the locked ``joint5`` held at ``joint5`` [rad] (the SRDF poses all hold it at 0)."""
+    robots = example_robot_data_dir()
+    urdf = robots / "b1_description/urdf/b1-z1.urdf"
+    full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
+    pin.loadReferenceConfigurations(full, str(robots / "b1_description/srdf/b1-z1.srdf"), False)
+    q = full.referenceConfigurations["standing_with_arm_up"].copy()
+    q[full.joints[full.getJointId("joint5")].idx_q] = joint5
+    return load_robot(
+        urdf,
+        foot_frames=UNITREE_FOOT_FRAMES,
+        ee_frame=B1_Z1_EE_FRAME,
+        locked_joints=B1_Z1_LOCKED_JOINTS,
+        q_reference=q,
+        extra_frames={B1_Z1_EE_FRAME: ("gripperMover", (0.05, 0.0, 0.0))},
+    )
+
+
+def _scale_limit(robot, limits, joint, factor):
+    """Scale one joint's entry of ``model.<limits>`` (e.g. ``effortLimit``)."""
+    joint_model = robot.model.joints[robot.model.getJointId(joint)]
+    values = getattr(robot.model, limits).copy()
+    values[joint_model.idx_q if "Position" in limits else joint_model.idx_v] *= factor
+    setattr(robot.model, limits, values)
+
+
+# (loader, change of the loaded robot, description entries that must report it)
+MODEL_CHANGES = {
+    "gravity": (load_b1, lambda r: _set_gravity(r, 9.0), {"gravity", "model.digests.gravity"}),
+    "link_mass": (
+        load_b1,
+        lambda r: _edit_inertia(r, "FL_calf_joint", mass=0.1),
+        {"mass", "model.items.inertias.FL_calf_joint"},
+    ),
+    "link_rotational_inertia": (
+        load_b1,
+        lambda r: _edit_inertia(r, "FL_calf_joint", scale=1.1),
+        {"model.items.inertias.FL_calf_joint"},
+    ),
+    "link_com": (
+        load_b1,
+        lambda r: _edit_inertia(r, "RR_thigh_joint", lever=(0.01, 0.0, 0.0)),
+        {"model.items.inertias.RR_thigh_joint"},
+    ),
+    "joint_placement": (
+        load_b1,
+        lambda r: _move_joint(r, "FR_thigh_joint", (0.0, 0.005, 0.0)),
+        {"model.items.joints.FR_thigh_joint"},
+    ),
+    "foot_frame": (
+        load_b1,
+        lambda r: _move_frame(r, "FL_foot", (0.0, 0.0, -0.01)),
+        {"model.items.frames.FL_foot"},
+    ),
+    "gripper_center": (
+        load_b1_z1,
+        lambda r: _move_frame(r, "gripper_center", (0.03, 0.0, 0.0)),
+        {"model.items.frames.gripper_center"},
+    ),
+    "position_limit": (
+        load_b1,
+        lambda r: _scale_limit(r, "upperPositionLimit", "FL_thigh_joint", 0.9),
+        {"model.items.limits.FL_thigh_joint"},
+    ),
+    "velocity_limit": (
+        load_b1,
+        lambda r: _scale_limit(r, "velocityLimit", "RL_calf_joint", 0.5),
+        {"model.items.limits.RL_calf_joint"},
+    ),
+    "torque_limit": (
+        load_b1,
+        lambda r: _scale_limit(r, "effortLimit", "RL_calf_joint", 0.5),
+        {"model.items.limits.RL_calf_joint"},
+    ),
+    "foot_radius": (load_b1, lambda r: setattr(r, "foot_radius", 0.05), {"foot_radius"}),
+}
+
+
+@pytest.mark.parametrize("change", list(MODEL_CHANGES))
+def test_cache_key_changes_with_the_numeric_model(change):
+    loader, edit, expected = MODEL_CHANGES[change]
+    key, before = codegen.cache_key(OCP(loader(), SMALL), FLAGS)
+    robot = loader()
+    edit(robot)
+    changed_key, after = codegen.cache_key(OCP(robot, SMALL), FLAGS)
+    assert changed_key != key
+    changes = codegen.describe_changes(before, after)
+    assert expected <= set(changes), changes  # the record says what changed ...
+    assert all(c.split(".")[0] in {"gravity", "mass", "foot_radius", "model"} for c in changes), changes
+
+
+def test_cache_key_changes_with_a_locked_joint_value():
+    key, before = codegen.cache_key(OCP(_b1_z1_locked_at(0.0), SMALL), FLAGS)
+    changed_key, after = codegen.cache_key(OCP(_b1_z1_locked_at(0.3), SMALL), FLAGS)
+    assert changed_key != key
+    changes = set(codegen.describe_changes(before, after))
+    # The locked body now hangs differently from joint4: its inertia and the gripper frame moved.
+    assert {
+        "locked_joints.joint5",
+        "model.items.inertias.joint4",
+        "model.items.frames.gripper_center",
+    } <= changes
+
+
+def test_cache_key_changes_with_the_ocp_settings():
+    key, _ = codegen.cache_key(OCP(load_b1(), SMALL), FLAGS)
+    settings = OCPSettings(n_nodes=3, n_tau_nodes=2)
+    assert codegen.cache_key(OCP(load_b1(), settings), FLAGS)[0] != key
+
+
+def test_reloading_the_same_robot_gives_the_same_key():
+    for loader in (load_b1, load_b1_z1):
+        first, description = codegen.cache_key(OCP(loader(), SMALL), FLAGS)
+        second, again = codegen.cache_key(OCP(loader(), SMALL), FLAGS)
+        assert first == second and codegen.describe_changes(description, again) == []
+
+
+@pytest.mark.parametrize(
+    ("loader", "edit"),
+    [
+        (load_b1, lambda r: _set_gravity(r, 9.0)),
+        (load_b1_z1, lambda r: _move_frame(r, "gripper_center", (0.03, 0.0, 0.02))),
+    ],
+    ids=["gravity", "gripper_center"],
+)
+def test_compiled_solver_matches_in_process_after_a_model_change(loader, edit, shared_cache, monkeypatch):
+    """With the original model's library in the cache, the changed model gets its own library."""
+    original = codegen.build(OCP(loader(), SMALL), FLAGS, directory=shared_cache, progress=False)
+    robot = loader()
+    edit(robot)
+    mpc = _solve_in_process_and_compiled(robot, shared_cache, monkeypatch)
+    assert mpc.compiled_nlp.key != original.key and mpc.compiled_nlp.rebuilt
+
+
+# --- temporary folders of killed builds -------------------------------------------------------------------
+_BUILD_SCRIPT = """
+import sys
+from wbmpc import codegen
+from wbmpc.ocp import OCP, OCPSettings
+from wbmpc.robot import load_b1
+ocp = OCP(load_b1(), OCPSettings(n_nodes=3, n_tau_nodes=1))
+codegen.build(ocp, ("-O0",), directory=sys.argv[1], progress=False)
+"""
+
+
+def _temporaries(folder):
+    return sorted(p for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+
+
+def test_killed_build_leaves_no_stale_temporary(small_ocp, tmp_path):
+    key, _ = codegen.cache_key(small_ocp, FLAGS)
+    folder = tmp_path / key
+    # A build in another process, killed while it works in its temporary folder.
+    builder = subprocess.Popen([sys.executable, "-c", _BUILD_SCRIPT, str(tmp_path)], start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120.0
+        while not _temporaries(folder):
+            assert builder.poll() is None and time.monotonic() < deadline, "the build never started"
+            time.sleep(0.05)
+        live = _temporaries(folder)
+        # While it runs, nobody else may remove its temporary folder.
+        assert codegen.remove_stale_builds(tmp_path) == []
+        assert _temporaries(folder) == live
+    finally:
+        os.killpg(builder.pid, signal.SIGKILL)  # the builder and its gcc, if any
+        builder.wait()
+    assert _temporaries(folder) == live  # killed: the folder stays behind
+    # Leftovers of another key, one from an older wbmpc (tempfile's default name), are swept as well.
+    other = tmp_path / "0123456789abcdef"
+    (other / ".build-1-x").mkdir(parents=True)
+    (other / "tmpabc123").mkdir()
+    (other / ".lock").touch()
+    built = codegen.build(small_ocp, FLAGS, directory=tmp_path, progress=False)
+    assert built.rebuilt and built.key == key
+    assert _temporaries(folder) == [] and _temporaries(other) == []
+    ca.external("nlp_hess_l", str(built.library))

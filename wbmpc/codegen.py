@@ -14,10 +14,15 @@ derivative function the solver needs (``nlp_f``, ``nlp_g``, ``nlp_grad_f``, ``nl
 The generated C holds each stage function once, so a 30-node problem has the same code as a 15-node one,
 and gcc compiles small functions instead of one huge expression (the monolithic NLP did not compile in
 13 minutes and 9 GB). Everything that was a runtime parameter stays one.
+
+Everything else is a constant of the generated code: the numeric robot model (inertias, placements,
+gravity, limits), the contact frames and the OCP settings. :func:`cache_key` fingerprints all of it, so
+that a changed model gets its own library, and each build record says what it was built from.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import hashlib
 import json
@@ -31,6 +36,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
+import pinocchio as pin
 
 from wbmpc.ocp import OCP
 from wbmpc.time_grid import symbolic_geometric_time_steps
@@ -174,19 +181,13 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
 # --- building, caching and loading ------------------------------------------------------------------------
 CODEGEN_VERSION = 1  # bump when the generated functions change meaning
 DEFAULT_FLAGS = ("-O1",)
-_SOURCES = (
-    "codegen.py",
-    "ocp.py",
-    "formulations.py",
-    "cpin/kinematics.py",
-    "cpin/rnea.py",
-    "cpin/aba.py",
-    "cpin/crba.py",
-    "cpin/centroidal.py",
-    "cpin/liegroups.py",
-    "cpin/spatial.py",
-    "cpin/model.py",
-)
+# Modules whose code shapes the generated functions (every cpin module is added by glob).
+_SOURCES = ("codegen.py", "ocp.py", "formulations.py", "time_grid.py")
+# Significant digits of the numeric fingerprint: reloading a model gives the same key on any platform.
+FINGERPRINT_DIGITS = 12
+# Temporary build folders start with this; older wbmpc versions used tempfile's default ``tmp``.
+_TMP_PREFIX = ".build-"
+_LEGACY_TMP_PREFIX = "tmp"
 
 
 def cache_dir() -> Path:
@@ -195,28 +196,157 @@ def cache_dir() -> Path:
     return Path(env) if env else Path(__file__).resolve().parent.parent / ".wbmpc_cache"
 
 
-def cache_key(ocp: OCP, flags: tuple[str, ...]) -> tuple[str, dict]:
-    """Hash of everything that changes the generated code, and the description it was computed from."""
-    robot = ocp.robot
+def _number(x) -> str:
+    """Canonical text of a float: ``FINGERPRINT_DIGITS`` significant digits, no negative zero."""
+    x = float(x)
+    return "0" if x == 0.0 else f"{x:.{FINGERPRINT_DIGITS}g}"
+
+
+def _rounded(x) -> float:
+    return float(_number(x))
+
+
+def _numbers(values) -> list[str]:
+    return [_number(x) for x in np.asarray(values, dtype=float).ravel()]
+
+
+def _placement(se3: pin.SE3) -> list[str]:
+    return _numbers(se3.rotation) + _numbers(se3.translation)
+
+
+def model_fingerprint(model: pin.Model) -> dict[str, dict[str, list]]:
+    """Canonical description of every number of a Pinocchio model the generated code can depend on.
+
+    Components (each ``{item name: canonical values}``): ``gravity``; ``joints`` (type, axis, parent,
+    indices, placement in the parent joint); ``inertias`` (mass, centre of mass, rotational inertia);
+    ``frames`` (parent joint, type, placement); ``limits`` (position, velocity and torque limits).
+    Floats are written with :data:`FINGERPRINT_DIGITS` significant digits. What the symbolic algorithms
+    never read (armature, friction, damping, geometry) is left out, so that it causes no rebuild.
+    """
+    joints, inertias, limits = {}, {}, {}
+    for j in range(model.njoints):
+        name = model.names[j]
+        inertia = model.inertias[j]
+        inertias[name] = _numbers([inertia.mass]) + _numbers(inertia.lever) + _numbers(inertia.inertia)
+        if j == 0:
+            continue  # the universe: no joint model, no placement, no limits
+        joint = model.joints[j]
+        axis = getattr(joint.extract(), "axis", None)  # unaligned revolute/prismatic joints
+        joints[name] = [
+            joint.shortname(),
+            model.names[model.parents[j]],
+            joint.idx_q,
+            joint.idx_v,
+            joint.nq,
+            joint.nv,
+            _numbers(axis) if axis is not None else None,
+            _placement(model.jointPlacements[j]),
+        ]
+        q, v = slice(joint.idx_q, joint.idx_q + joint.nq), slice(joint.idx_v, joint.idx_v + joint.nv)
+        limits[name] = [
+            _numbers(model.lowerPositionLimit[q]),
+            _numbers(model.upperPositionLimit[q]),
+            _numbers(model.velocityLimit[v]),
+            _numbers(model.effortLimit[v]),
+        ]
+    frames = {}
+    for i, frame in enumerate(model.frames):
+        name = frame.name if frame.name not in frames else f"{frame.name}#{i}"  # names may repeat
+        frames[name] = [model.names[frame.parentJoint], str(frame.type), _placement(frame.placement)]
+    gravity = {"linear": _numbers(model.gravity.linear), "angular": _numbers(model.gravity.angular)}
+    return {"gravity": gravity, "joints": joints, "inertias": inertias, "frames": frames, "limits": limits}
+
+
+def _digest(data, n: int) -> str:
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:n]
+
+
+def _sources_sha256() -> str:
     package = Path(__file__).resolve().parent
-    sources = hashlib.sha256(b"".join((package / f).read_bytes() for f in _SOURCES)).hexdigest()
+    files = [package / f for f in _SOURCES] + sorted((package / "cpin").glob("*.py"))
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
+
+
+def cache_key(ocp: OCP, flags: tuple[str, ...]) -> tuple[str, dict]:
+    """Hash of everything that changes the generated code, and the description it was computed from.
+
+    The key covers the numeric robot model (:func:`model_fingerprint`: every inertia, joint and frame
+    placement, gravity, limits), the robot-level choices the OCP bakes in (contact frames, locked joints,
+    foot radius, total mass), every field of the OCP settings, the compiler, its flags, CasADi and the
+    wbmpc sources that generate the code. The reference poses are not part of it: the OCP takes the
+    measured and desired configurations as parameters (the locked joints' values enter the reduced model
+    and are keyed through it and ``locked_joints``).
+
+    The description is what a build record shows: readable values for the robot and the settings, and a
+    short digest per model component and per model item (joint, body, frame) so that comparing two records
+    (:func:`describe_changes`) tells what changed.
+    """
+    robot = ocp.robot
+    model = robot.model
+    fingerprint = model_fingerprint(model)
+    urdf = Path(robot.urdf_path)
     description = {
         "codegen_version": CODEGEN_VERSION,
-        "formulation": ocp.settings.formulation,
-        "n_nodes": ocp.settings.n_nodes,
-        "n_tau_nodes": ocp.settings.n_tau_nodes,
+        "ocp_settings": dataclasses.asdict(ocp.settings),
+        "ocp_size": {
+            "variables": ocp.n_variables,
+            "constraints": ocp.n_constraints,
+            "params": ocp.params.size,
+        },
         "robot": robot.name,
-        "urdf_sha256": hashlib.sha256(Path(robot.urdf_path).read_bytes()).hexdigest(),
-        "locked_joints": robot.locked_joints,
+        "urdf_sha256": hashlib.sha256(urdf.read_bytes()).hexdigest() if urdf.is_file() else None,
+        "locked_joints": {name: _rounded(value) for name, value in robot.locked_joints.items()},
         "contact_frames": list(robot.contact_frames),
-        "mass": robot.mass,
+        "foot_frames": list(robot.foot_frames),
+        "ee_frame": robot.ee_frame,
+        "foot_radius": _rounded(robot.foot_radius),
+        "mass": _rounded(robot.mass),
+        "gravity": [_rounded(g) for g in model.gravity.linear],
+        "model": {
+            "nq": model.nq,
+            "nv": model.nv,
+            "njoints": model.njoints,
+            "nframes": len(model.frames),
+            "digests": {part: _digest(items, 12) for part, items in fingerprint.items()},
+            "items": {
+                part: {name: _digest(values, 8) for name, values in items.items()}
+                for part, items in fingerprint.items()
+                if part != "gravity"
+            },
+        },
         "flags": list(flags),
         "casadi": ca.__version__,
         "compiler": _compiler_version(),
-        "wbmpc_sources_sha256": sources,
+        "wbmpc_sources_sha256": _sources_sha256(),
     }
-    key = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+    # The short digests are for reading; the key hashes the full canonical fingerprint.
+    key = _digest([description, fingerprint], 16)
     return key, description
+
+
+def describe_changes(old: dict, new: dict, prefix: str = "") -> list[str]:
+    """Dotted paths of the entries that differ between two cache descriptions (or build records).
+
+    Example: comparing the ``build.json`` of two keys after moving the tool frame gives
+    ``["model.digests.frames", "model.items.frames.gripper_center"]`` (records also differ in timings).
+
+    Args:
+        old, new: Descriptions from :func:`cache_key`, or build records.
+        prefix: Path of ``old`` and ``new`` inside an enclosing description.
+    """
+    if not (isinstance(old, dict) and isinstance(new, dict)):
+        return [] if old == new else [prefix or "."]
+    changes = []
+    for name in sorted(set(old) | set(new), key=str):
+        path = f"{prefix}.{name}" if prefix else str(name)
+        if name not in old or name not in new:
+            changes.append(path)
+        else:
+            changes += describe_changes(old[name], new[name], path)
+    return changes
 
 
 @dataclass
@@ -241,7 +371,8 @@ def build(
     """Generate and compile the NLP functions of ``ocp``, or reuse the cached library.
 
     Safe when several processes build at once (a file lock serialises builds of the same key); a cached
-    library whose checksum does not match its record, or that does not load, is rebuilt.
+    library whose checksum does not match its record, or that does not load, is rebuilt. Temporary folders
+    of killed builds are removed on the way (:func:`remove_stale_builds`).
 
     Args:
         ocp: The problem.
@@ -255,14 +386,15 @@ def build(
     folder.mkdir(parents=True, exist_ok=True)
     library, record = folder / "libwbmpc_nlp.so", folder / "build.json"
     with open(folder / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process dies
+        remove_stale_builds(folder.parent, locked=folder)
         if not force and _valid(library, record):
             info = json.loads(record.read_text())
             return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], False)
         start = time.perf_counter()
         if progress:
             print(f"[wbmpc.codegen] generating C for {ocp.n_nodes} nodes ({key}) ...", flush=True)
-        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        with tempfile.TemporaryDirectory(prefix=f"{_TMP_PREFIX}{os.getpid()}-", dir=folder) as tmp:
             tmp = Path(tmp)
             generator = ca.CodeGenerator("wbmpc_nlp.c", {"with_header": True})
             for function in nlp_functions(ocp):
@@ -293,6 +425,53 @@ def build(
                 f"[wbmpc.codegen] built {library} in {build_s:.0f} s (gcc peak {peak_mb:.0f} MB)", flush=True
             )
         return CompiledNLP(library, key, build_s, peak_mb, c_bytes, True)
+
+
+def remove_stale_builds(directory: Path | None = None, locked: Path | None = None) -> list[Path]:
+    """Delete the temporary folders that killed builds left in the cache.
+
+    A build creates its temporary folder inside its key folder while it holds that folder's lock, and the
+    lock is released when the process ends, however it ends. So a temporary folder in a key folder whose
+    lock can be taken belongs to a dead build; a live build's folder is never touched (its lock is held).
+
+    Args:
+        directory: Cache folder (default :func:`cache_dir`).
+        locked: A key folder whose lock the caller already holds (its temporary folders are all stale).
+
+    Returns:
+        The folders removed.
+    """
+    root = Path(directory or cache_dir())
+    removed = []
+    for folder in sorted(root.iterdir()) if root.is_dir() else []:
+        try:
+            if not (folder / ".lock").is_file():
+                continue  # not a key folder
+            stale = [
+                path
+                for path in folder.iterdir()
+                if path.is_dir() and path.name.startswith((_TMP_PREFIX, _LEGACY_TMP_PREFIX))
+            ]
+        except OSError:  # removed meanwhile by someone else
+            continue
+        if not stale:
+            continue
+        if locked is not None and folder.resolve() == Path(locked).resolve():
+            removed += _remove(stale)
+            continue
+        with open(folder / ".lock", "a") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue  # a build of this key is running
+            removed += _remove(stale)
+    return removed
+
+
+def _remove(paths: list[Path]) -> list[Path]:
+    for path in paths:
+        shutil.rmtree(path, ignore_errors=True)
+    return [path for path in paths if not path.exists()]
 
 
 def _valid(library: Path, record: Path) -> bool:
