@@ -92,24 +92,55 @@ def print_summary(summary: dict) -> None:
         print(f"  {name:<{width}}  {value}")
 
 
+def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Reject bad values before any work (argparse prints the one-line reason and exits with status 2)."""
+    positive = {"--period": args.period, "--nodes": args.nodes}
+    if args.duration is not None:
+        positive["--duration"] = args.duration
+    for flag, value in positive.items():
+        if not value > 0 or value != value or value == float("inf"):
+            parser.error(f"{flag} must be a finite number > 0, got {value}")
+    if args.nodes < 3:
+        parser.error(f"--nodes must be >= 3 (nodes including the terminal one), got {args.nodes}")
+    for flag, value in {"--kp": args.kp, "--kd": args.kd}.items():
+        if not 0 <= value < float("inf"):
+            parser.error(f"{flag} must be a finite number >= 0, got {value}")
+    if not abs(args.speed) < float("inf"):
+        parser.error(f"--speed must be finite, got {args.speed}")
+    try:  # a bad output folder fails now, not after the simulation
+        args.output.mkdir(parents=True, exist_ok=True)
+        probe = args.output / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        parser.error(f"--output {args.output} is not a writable folder: {exc}")
+
+
 def main(argv: list[str] | None = None) -> dict:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    check_arguments(parser, args)
     from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
     from wbmpc.gait import make_gait, parse_gait_schedule
     from wbmpc.mpc import MPCConfig, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
     from wbmpc.robot import load
 
-    robot = load(args.robot)
+    try:
+        if ":" in args.gait or "," in args.gait:
+            gait = parse_gait_schedule(args.gait, args.period)
+            default_duration = gait.duration
+        else:
+            gait, default_duration = make_gait(args.gait, args.period), 10.0
+    except ValueError as exc:
+        parser.error(f"--gait {args.gait!r}: {exc}")
+    try:
+        robot = load(args.robot)
+    except ValueError as exc:
+        parser.error(f"--robot {args.robot!r}: {exc}")
     print(robot.summary())
-    if ":" in args.gait or "," in args.gait:
-        gait = parse_gait_schedule(args.gait, args.period)
-        for note in gait.notes:
-            print(f"gait schedule: {note}")
-        default_duration = gait.duration
-    else:
-        gait = make_gait(args.gait, args.period)
-        default_duration = 10.0
+    for note in getattr(gait, "notes", ()):
+        print(f"gait schedule: {note}")
     if args.duration is None:
         args.duration = pick(full=default_duration, quick=0.5)
     config = MPCConfig(gait=gait, solver=args.solver, compiled=args.compiled)
@@ -142,6 +173,20 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"summary copied to {target}")
     print(f"outputs in {out}")
     return summary
+
+
+def exit_status(summary: dict) -> int:
+    """0 for a run that stood and converged; 1 with a one-line reason on stderr otherwise."""
+    if summary["fell"]:
+        print(f"demo failed: the robot fell at t = {summary['duration_s']:.2f} s", file=sys.stderr)
+        return 1
+    if summary["converged_fraction"] < 0.9:
+        print(
+            f"demo failed: only {100 * summary['converged_fraction']:.0f} % of the solves converged",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
 
 
 def _figures(result, robot, out: Path, speed: float) -> None:
@@ -178,4 +223,4 @@ def _replay(result, robot, out: Path) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(exit_status(main()))

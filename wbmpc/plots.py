@@ -188,20 +188,20 @@ def _contact_chart(ax, t: np.ndarray, contact: np.ndarray, robot: Robot) -> None
     ax.set_ylabel("stance")
 
 
-def plot_torques(
-    log: Mapping[str, np.ndarray], robot: Robot, joints: Sequence[str] = DEFAULT_TORQUE_JOINTS
-) -> Figure:
+def plot_torques(log: Mapping[str, np.ndarray], robot: Robot, joints: Sequence[str] | None = None) -> Figure:
     """Applied joint torques against their limits, one panel per joint.
 
     Args:
         log: ``ClosedLoopLog.arrays()`` (``t``, ``tau``, optionally ``tau_ff``).
         robot: The robot (joint indices and torque limits).
-        joints: Joint names; the default shows the two rear knees (the most loaded leg joints) and the arm's
-            shoulder pitch.
+        joints: Joint names; by default the two rear knees (the most loaded leg joints) and, on a robot
+            with the Z1 arm, its shoulder pitch (the default joints the robot does not have are left out).
 
     Returns:
         The figure.
     """
+    if joints is None:
+        joints = [name for name in DEFAULT_TORQUE_JOINTS if name in robot.joint_names]
     t = np.asarray(log["t"], dtype=float)
     tau = np.asarray(log["tau"], dtype=float)
     tau_ff = np.asarray(log["tau_ff"], dtype=float) if "tau_ff" in log else None
