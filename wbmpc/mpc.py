@@ -30,6 +30,7 @@ from wbmpc.statics import static_equilibrium
 from wbmpc.time_grid import geometric_time_steps, node_times
 
 SOLVERS = ("fatrop", "ipopt")
+DT_BOUNDS = (1e-4, 1.0)  # [s] sane range of the MPC's time steps
 
 
 def default_weights(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
@@ -145,10 +146,30 @@ class MPCConfig:
     retry_max_iter: int = 100
 
     def __post_init__(self):
-        for name in ("dt_min", "dt_max", "mu", "tol"):
+        for name in ("dt_min", "dt_max", "mu", "tol", "mu_init_warm", "mu_init_cold"):
             value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
+            if not isinstance(value, int | float | np.number) or not np.isfinite(value) or value <= 0:
                 raise ValueError(f"MPCConfig.{name} must be a positive number, got {value!r}")
+        for name in ("dt_min", "dt_max"):
+            if not DT_BOUNDS[0] <= getattr(self, name) <= DT_BOUNDS[1]:
+                raise ValueError(
+                    f"MPCConfig.{name} = {getattr(self, name)} s is outside "
+                    f"[{DT_BOUNDS[0]}, {DT_BOUNDS[1]}] s (the paper's steps: 0.01 to 0.1 s)"
+                )
+        for name in ("max_iter", "cold_max_iter", "retry_max_iter"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"MPCConfig.{name} must be an integer >= 1, got {value!r}")
+        for name in ("Q", "R"):
+            value = getattr(self, name)
+            if value is not None:
+                value = np.asarray(value, dtype=float)
+                if value.ndim != 1 or not np.all(np.isfinite(value)) or np.any(value < 0):
+                    raise ValueError(
+                        f"MPCConfig.{name} must be a 1-D array of finite weights >= 0, got {value!r}"
+                    )
+        if self.front_force_ratio is not None and not 0.0 <= self.front_force_ratio <= 1.0:
+            raise ValueError(f"MPCConfig.front_force_ratio must be in [0, 1], got {self.front_force_ratio!r}")
         if self.dt_max < self.dt_min:
             raise ValueError(f"MPCConfig.dt_max ({self.dt_max}) must be >= dt_min ({self.dt_min})")
         if self.solver not in SOLVERS:
@@ -318,7 +339,7 @@ class WholeBodyMPC:
         v_des = np.zeros(robot.nv)
         v_des[0:3] = R_base.T @ R_heading @ commands.base_linear_velocity
         v_des[3:6] = R_base.T @ R_heading @ commands.base_angular_velocity
-        Q_default, R_default = self._default_weights
+        Q, R = self.weights()
         return {
             "q_hat": q_hat,
             "v_hat": v_hat,
@@ -334,9 +355,26 @@ class WholeBodyMPC:
             else commands.ee_velocity,
             "ee_force": commands.ee_force,
             "mu": cfg.mu,
-            "Q": Q_default if cfg.Q is None else cfg.Q,
-            "R": R_default if cfg.R is None else cfg.R,
+            "Q": Q,
+            "R": R,
         }
+
+    def weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """The diagonal weights ``Q`` (2 nv,) and ``R`` of this solve: the config's, or the defaults."""
+        out = []
+        for name, default in zip(("Q", "R"), self._default_weights, strict=True):
+            value = getattr(self.config, name)
+            if value is None:
+                out.append(default)
+                continue
+            value = np.asarray(value, dtype=float)
+            if value.shape != default.shape or not np.all(np.isfinite(value)) or np.any(value < 0):
+                raise ValueError(
+                    f"MPCConfig.{name} must hold {default.size} finite weights >= 0 for this robot and "
+                    f"formulation, got shape {value.shape}" + (f", min {value.min()}" if value.size else "")
+                )
+            out.append(value)
+        return out[0], out[1]
 
     # --- initial guesses ---------------------------------------------------------------------------------
     def cold_guess(self, q_hat: np.ndarray, v_hat: np.ndarray, params: dict) -> np.ndarray:
