@@ -630,4 +630,8 @@ def _interp_rows(t_new: np.ndarray, t_old: np.ndarray, rows: np.ndarray) -> np.n
     rows = np.asarray(rows)
     if rows.size == 0:
         return rows
-    return np.column_stack([np.interp(t_new, t_old, rows[:, j]) for j in range(rows.shape[1])])
+    if len(t_old) == 1:
+        return np.repeat(rows[:1], len(t_new), axis=0)
+    i = np.clip(np.searchsorted(t_old, t_new, side="right") - 1, 0, len(t_old) - 2)
+    w = np.clip((t_new - t_old[i]) / (t_old[i + 1] - t_old[i]), 0.0, 1.0)[:, None]
+    return (1.0 - w) * rows[i] + w * rows[i + 1]
