@@ -488,6 +488,14 @@ def machine_description() -> str:
     return f"{cpu}, {os.cpu_count()} cores, {system}, Python {platform.python_version()}"
 
 
+def blasfeo_record() -> dict:
+    """Which BLASFEO Fatrop ran on (see :mod:`wbmpc.blasfeo`), for run summaries."""
+    from wbmpc import blasfeo
+
+    info = blasfeo.info()
+    return {k: info.get(k) for k in ("choice", "reason", "library", "target", "library_features")}
+
+
 def summarize(
     mpc: WholeBodyMPC,
     log: ClosedLoopLog,
@@ -553,6 +561,7 @@ def summarize(
         "mpc_rate_hz": config.mpc_rate,
         "plant_dt_s": config.plant_dt,
         "machine": machine_description(),
+        "blasfeo": blasfeo_record(),
     }
     if plant is not None:
         summary["contact_violations"] = {k: int(np.sum(v)) for k, v in plant.violation_counts.items()}
