@@ -112,3 +112,36 @@ def test_solve_inputs(mpc, q, v, commands, message):
     with pytest.raises(ValueError) as err:
         mpc.solve(q_hat, v_hat, commands=commands)
     assert message in str(err.value)
+
+
+def test_zero_quaternion_is_named(mpc):
+    q = mpc.robot.q_nominal.copy()
+    q[3:7] = 0.0
+    with pytest.raises(ValueError, match="base quaternion"):
+        mpc.solve(q, np.zeros(mpc.robot.nv))
+
+
+def test_an_upward_arm_force_above_the_weight_is_refused(mpc):
+    with pytest.raises(ValueError, match="command refused: .*weight"):
+        mpc.solve(
+            mpc.robot.q_nominal, np.zeros(mpc.robot.nv), commands=Commands(ee_force=np.array([0, 0, 1e3]))
+        )
+
+
+def test_arm_commands_on_a_robot_without_arm_are_refused():
+    from wbmpc.robot import load_b1
+
+    b1 = load_b1()
+    mpc = WholeBodyMPC(b1, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))
+    with pytest.raises(ValueError, match="command refused: .*arm"):
+        mpc.solve(b1.q_nominal, np.zeros(b1.nv), commands=Commands(ee_velocity=np.array([0.1, 0, 0])))
+
+
+def test_a_force_beyond_the_arm_torque_limits_is_explained_on_the_plan(mpc):
+    """100 N down needs about 57 N m at joint3 (limit 30): the plan carries the finding."""
+    plan = mpc.solve(
+        mpc.robot.q_nominal, np.zeros(mpc.robot.nv), commands=Commands(ee_force=np.array([0, 0, -100.0]))
+    )
+    codes = {f.code for f in plan.findings}
+    assert "ee_force_exceeds_torque_limit" in codes
+    assert any("joint3" in f.message for f in plan.findings)

@@ -186,3 +186,29 @@ def test_closed_loop_holds_until_the_first_converged_plan(robot, monkeypatch):
     np.testing.assert_allclose(log["plan_tau"][0], eq.tau, atol=1e-9)
     q = log["q"]
     assert np.max(np.abs(q[:, 2] - q[0, 2])) < 0.01  # held, not collapsed
+
+
+def test_a_failing_loop_says_why_once_and_counts(robot, monkeypatch, capsys):
+    """Every solve after the first fails (injected): one printed line, every failure counted by reason."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
+    real = mpc._solver
+    calls = {"n": 0}
+
+    def failing_later(cold, max_iter=None):
+        calls["n"] += 1
+        if calls["n"] > 1:
+
+            def solve(**kwargs):
+                raise RuntimeError("injected failure")
+
+            return solve
+        return real(cold, max_iter)
+
+    monkeypatch.setattr(mpc, "_solver", failing_later)
+    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, arm_reference=None), progress=False)
+    printed = [line for line in capsys.readouterr().out.splitlines() if "solve failed" in line]
+    assert len(printed) == 1 and "solver_exception" in printed[0] and "previous plan kept" in printed[0]
+    diagnostics = result.summary["diagnostics"]
+    assert diagnostics["failure_reasons"] == {"solver_exception": result.summary["mpc_solves"] - 1}
+    log = result.log.run_log().solves
+    assert set(log["status"][1:]) == {"solver_exception"} and "injected failure" in log["reason"][1]

@@ -26,6 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.arm_task import ArmReference, heading_frame, velocity_command
+from wbmpc.diagnostics import FailureReporter
 from wbmpc.disturbances import Disturbance, Kick, Push
 from wbmpc.gait import Gait, GaitSchedule
 from wbmpc.logs import RunLog, save_log
@@ -148,6 +149,7 @@ class ClosedLoopLog:
     fallback: list = field(default_factory=list)
     violation: list = field(default_factory=list)
     status: list = field(default_factory=list)
+    reason: list = field(default_factory=list)
     ee_command: list = field(default_factory=list)
     timings: list = field(default_factory=list)
     plans: list = field(default_factory=list)
@@ -177,6 +179,7 @@ class ClosedLoopLog:
         "fallback",
         "violation",
         "status",
+        "reason",
         "ee_command",
         "plan_q",
         "plan_v",
@@ -196,6 +199,7 @@ class ClosedLoopLog:
         n_solves = len(self.solve_t)
         solves = {k: arrays[k] for k in self.SOLVE_COLUMNS if len(arrays[k]) == n_solves}
         solves["status"] = np.asarray([str(x) for x in self.status], dtype=str)
+        solves["reason"] = np.asarray([str(x) for x in self.reason], dtype=str)
         skip = set(self.SOLVE_COLUMNS)
         signals = {k: v for k, v in arrays.items() if k not in skip and len(v) == len(self.t)}
         return RunLog(signals=signals, solves=solves, meta=dict(meta or {}))
@@ -275,6 +279,7 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
     busy_until = 0  # plant step before which no new solve can start (the solver is working)
     cmd = _commands(config, 0.0)
     scene_names = plant.body_names if pybullet else []
+    reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
 
     bar = _progress(n_steps // per_mpc, progress)
     for step in range(n_steps):
@@ -313,6 +318,11 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
                 commands.ee_velocity = ee_cmd
                 log.ee_command.append(ee_cmd if ee_cmd.ndim == 1 else ee_cmd[:, 0])
             plan = mpc.solve(q_meas, v_meas, t, commands)
+            if plan.fallback:
+                kept = "static hold applied" if plan.hold else "previous plan kept"
+                reporter.report(t, plan.status, f"{plan.reason} ({kept})")
+            if plan.findings:
+                reporter.report_findings(t, plan.findings)
             delay = _delay_steps(config, plan.solve_time)
             if delay == 0 or low.plan is None:  # no delay, or nothing to hold yet (the robot starts at rest)
                 low.update(plan)
@@ -368,6 +378,7 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
     if bar is not None:
         bar.close()
     summary = summarize(mpc, log, config, fell, low.violations, plant)
+    summary["diagnostics"] = reporter.summary()
     summary["scene_bodies"] = list(scene_names)
     if hasattr(plant, "close"):
         plant.close()
@@ -452,6 +463,7 @@ def _log_solve(log: ClosedLoopLog, plan: MPCSolution, keep_plans: bool, apply_t:
     log.fallback.append(plan.fallback)
     log.violation.append(plan.constraint_violation)
     log.status.append(plan.status)
+    log.reason.append(plan.reason)
     log.timings.append(plan.timings)
     if keep_plans:
         log.plans.append(plan)

@@ -32,7 +32,8 @@ Columns written by :func:`wbmpc.closed_loop.run_closed_loop` (units SI, world ax
 ``signals/base_velocity_cmd``  commanded base linear velocity [m/s] (T, 3), heading frame
 ``signals/ee_force_cmd``  commanded end-effector force [N] (T, 3)
 ``solves/solve_time``  wall time of the solve [s]; ``iterations``; ``success``; ``fallback``;
-                       ``violation`` (max constraint violation); ``status`` (solver message)
+                       ``violation`` (max constraint violation); ``status`` (named solver status,
+                       :func:`wbmpc.diagnostics.solver_status`); ``reason`` (why it failed, empty on success)
 ``solves/plan_q``, ``plan_v``, ``plan_tau``, ``plan_forces``  first nodes of each plan (S, n, ...)
 ``solves/plan_contact``  stance flags the plan used on its first stage (S, 4)
 ``solves/hold``        the static hold was applied (no converged plan existed yet)

@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.diagnostics import exception_status, run_prechecks, solver_status
 from wbmpc.gait import (
     Gait,
     GaitSchedule,
@@ -31,6 +32,8 @@ from wbmpc.time_grid import geometric_time_steps, node_times
 
 SOLVERS = ("fatrop", "ipopt")
 DT_BOUNDS = (1e-4, 1.0)  # [s] sane range of the MPC's time steps
+# Precheck findings that make the problem ill-posed: refused before any work (the others ride on the plan).
+REFUSED_FINDINGS = ("ee_force_lifts_robot", "arm_command_without_arm")
 
 
 def default_weights(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
@@ -451,22 +454,32 @@ class WholeBodyMPC:
             The new plan, or the previous one shifted in time with ``fallback=True`` if the solve failed.
 
         Raises:
-            ValueError: wrong shape or NaN in the state or the commands (bad input, not a solver failure).
+            ValueError: wrong shape or NaN in the state or the commands, a zero quaternion, an upward
+                end-effector force the stance feet cannot balance (bad input, not a solver failure).
         """
+        start = time.perf_counter()
         q_hat = _checked("q_hat", q_hat, self.robot.nq)
         v_hat = _checked("v_hat", v_hat, self.robot.nv)
         q_hat = q_hat.copy()
-        q_hat[3:7] /= np.linalg.norm(q_hat[3:7])
+        norm = np.linalg.norm(q_hat[3:7])
+        if norm < 1e-6:
+            raise ValueError(
+                f"q_hat[3:7] is the base quaternion (x, y, z, w) and must not be zero, got {q_hat[3:7]}"
+            )
+        q_hat[3:7] /= norm
         commands = (commands or Commands()).validated()
+        # Cheap physical checks (~0.1 ms): explain a failure before it happens; refuse ill-posed commands.
+        findings = tuple(run_prechecks(self.robot, q_hat, v_hat, commands, self.config.gait))
+        for finding in findings:
+            if finding.code in REFUSED_FINDINGS:
+                raise ValueError(f"command refused: {finding.message}")
         params = self.parameters(q_hat, v_hat, t, commands)
         p = self.ocp.params.pack(params)
         # self.previous is always the last converged plan (fallbacks are not stored).
         cold = not warm_start or self.previous is None
-        x0 = (
-            self.cold_guess(q_hat, v_hat, params)
-            if cold
-            else self.shifted_guess(self.previous, q_hat, t, params)
-        )
+        x0 = None if cold else self.shifted_guess(self.previous, q_hat, t, params)
+        if x0 is None or not np.all(np.isfinite(x0)):  # Fatrop does not return from a NaN guess
+            x0, cold = self.cold_guess(q_hat, v_hat, params), True
         args = {"x0": x0, "p": p, "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
         if not cold and self.config.dual_warm_start and self.previous.lam_g is not None:
             args["lam_g0"] = self.previous.lam_g
@@ -482,21 +495,27 @@ class WholeBodyMPC:
             w2, lam_g2, report2 = self._run_solver(self._solver(True, self.config.retry_max_iter), args)
             report2["solve_time"] += report["solve_time"]
             report2["iterations"] += max(report["iterations"], 0)
-            report2["status"] = f"cold retry: {report2['status']}"
+            report2["timings"] = {**report2["timings"], "cold_retry": 1.0}
+            if not report2["success"]:
+                report2["reason"] = f"warm start: {report['status']}; cold retry: {report2['reason']}"
             if report2["success"] or w is None:
                 w, lam_g, report = w2, lam_g2, report2
             else:
                 report["solve_time"], report["iterations"] = report2["solve_time"], report2["iterations"]
+        report["findings"] = findings
         if not report["success"]:
             self.stats["failures"] += 1
             # Only converged plans reach the low level or become the warm start.
             if self.previous is not None:
-                return replace(self.previous, fallback=True, hold=False, **report)
-            self.stats["holds"] += 1
-            return self.hold_plan(q_hat, t, params, report)
-        solution = self._solution(w, lam_g, q_hat, t, p, params, report)
-        self.previous = solution
-        return solution
+                plan = replace(self.previous, fallback=True, hold=False, **report)
+            else:
+                self.stats["holds"] += 1
+                plan = self.hold_plan(q_hat, t, params, report)
+        else:
+            plan = self.previous = self._solution(w, lam_g, q_hat, t, p, params, report)
+        # The whole call, Python included (solve_time is the solver's share).
+        plan.timings = {**plan.timings, "total": time.perf_counter() - start}
+        return plan
 
     def hold_plan(self, q_hat: np.ndarray, t: float, params: dict, report: dict | None = None) -> MPCSolution:
         """The safe command while no converged plan exists: hold the measured pose at rest.
@@ -527,6 +546,8 @@ class WholeBodyMPC:
             iterations=report.get("iterations", -1),
             solve_time=report.get("solve_time", 0.0),
             status=report.get("status", "hold"),
+            reason=report.get("reason", ""),
+            findings=report.get("findings", ()),
             constraint_violation=report.get("constraint_violation", np.inf),
             fallback=True,
             hold=True,
@@ -546,19 +567,23 @@ class WholeBodyMPC:
             g = np.array(out["g"]).ravel()
             violation = float(np.max(np.maximum(0.0, np.maximum(self.ocp.lbg - g, g - self.ocp.ubg))))
             success = bool(stats.get("success", False)) and np.all(np.isfinite(w))
-            status = str(stats.get("return_status", "unknown"))
+            status, reason = solver_status(self.config.solver, stats)
+            if not success and status == "success":  # a non-finite iterate
+                status, reason = "non_finite_solution", "the solver returned NaN or inf"
             iterations = int(stats.get("iter_count", -1))
             lam_g = np.array(out["lam_g"]).ravel()
             timings = solver_timings(stats, elapsed)
         except RuntimeError as exc:  # the solver raised (e.g. NaN in an evaluation): counted, not fatal
             elapsed = time.perf_counter() - start
             self.stats["exceptions"] += 1
-            success, status, iterations, violation = False, f"exception: {exc}", -1, np.inf
+            status, reason = exception_status(exc)
+            success, iterations, violation = False, -1, np.inf
             w = lam_g = None
             timings = {"wall": elapsed}
         report = {
             "success": bool(success),
             "status": status,
+            "reason": "" if success else reason,
             "iterations": iterations,
             "solve_time": elapsed,
             "constraint_violation": violation,

@@ -1,0 +1,744 @@
+"""Why a solve failed, and cheap physical checks of a request before it is solved.
+
+Three parts, each usable on its own:
+
+* :func:`solver_status` turns a solver's ``stats()`` into a short name and a one-sentence reason
+  (Fatrop through CasADi 3.8.2, or IPOPT); :func:`exception_status` does the same for an exception the
+  solver raised.
+* Prechecks (:func:`run_prechecks` and the checks it runs) look at the robot, the measured state, the
+  commands and the gait with plain numpy/Pinocchio, in tens of microseconds, and return
+  :class:`Finding` objects that name the problem and its numbers (e.g. the arm joint that cannot hold the
+  commanded end-effector force).
+* :class:`FailureReporter` prints one line the first time a failure reason or a finding occurs in a
+  closed-loop run and counts every occurrence for the run summary.
+
+Fatrop's status through CasADi 3.8.2 (which ships libfatrop 1.1.8): ``stats["return_status"]`` is the
+return value of Fatrop's C interface ``fatrop_ocp_c_solve``, only 0 (success), 1 (anything else) or -1
+(an exception caught inside Fatrop). The actual reason is ``stats["fatrop"]["return_flag"]``, the integer
+value of Fatrop's ``IpSolverReturnFlag`` enum (``include/fatrop/ip_algorithm/ip_algorithm.hpp``)::
+
+    0 Success  1 MaxIterExceeded  2 StopAtAcceptablePoint  3 LocalInfeasibility
+    4 LineSearchFailed  5 ErrorInStepComputation  6 Unknown
+
+Example:
+    >>> name, reason = solver_status("fatrop", solver.stats())
+    >>> findings = run_prechecks(robot, q, v, commands, gait)
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Literal, TextIO
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.gait import Gait
+from wbmpc.robot import Robot
+
+Severity = Literal["warning", "error"]
+
+# --- solver status ------------------------------------------------------------------------------------------
+SUCCESS = "success"
+
+# IpSolverReturnFlag of Fatrop >= 1.0 (the enum order is the integer value).
+FATROP_FLAGS: dict[int, tuple[str, str]] = {
+    0: (SUCCESS, "Fatrop converged to the requested tolerance."),
+    1: ("max_iter_exceeded", "Fatrop reached its iteration cap before converging."),
+    2: (
+        "acceptable_point",
+        "Fatrop stopped at a point that meets only its acceptable (looser) tolerance.",
+    ),
+    3: (
+        "local_infeasibility",
+        "Fatrop's restoration phase failed: the constraints look locally infeasible.",
+    ),
+    4: (
+        "line_search_failed",
+        "Fatrop's line search found no acceptable step (the restoration phase failed too): the problem "
+        "is probably infeasible or badly scaled near the current iterate.",
+    ),
+    5: (
+        "step_computation_error",
+        "Fatrop could not compute a search direction (linear solve failed or gave NaN).",
+    ),
+    6: ("fatrop_unknown", "Fatrop stopped for an unspecified reason."),
+}
+
+# IPOPT ApplicationReturnStatus strings as CasADi reports them in stats()["return_status"].
+IPOPT_STATUSES: dict[str, tuple[str, str]] = {
+    "Solve_Succeeded": (SUCCESS, "IPOPT converged to the requested tolerance."),
+    "Solved_To_Acceptable_Level": (
+        "acceptable_point",
+        "IPOPT stopped at a point that meets only its acceptable (looser) tolerance.",
+    ),
+    "Infeasible_Problem_Detected": (
+        "infeasible",
+        "IPOPT converged to a point of local infeasibility: the constraints cannot all be met.",
+    ),
+    "Search_Direction_Becomes_Too_Small": (
+        "search_direction_too_small",
+        "IPOPT's search direction became too small to make progress.",
+    ),
+    "Diverging_Iterates": ("diverging", "IPOPT's iterates diverged (variables grew without bound)."),
+    "User_Requested_Stop": ("user_stop", "A callback asked IPOPT to stop."),
+    "Feasible_Point_Found": ("feasible_point", "IPOPT found a feasible point (square problem)."),
+    "Maximum_Iterations_Exceeded": (
+        "max_iter_exceeded",
+        "IPOPT reached its iteration cap before converging.",
+    ),
+    "Restoration_Failed": (
+        "restoration_failed",
+        "IPOPT's feasibility restoration phase failed: the problem is probably infeasible near the "
+        "current iterate.",
+    ),
+    "Error_In_Step_Computation": (
+        "step_computation_error",
+        "IPOPT could not compute a search direction (linear solver failure).",
+    ),
+    "Maximum_CpuTime_Exceeded": ("max_time_exceeded", "IPOPT reached its CPU-time limit."),
+    "Maximum_WallTime_Exceeded": ("max_time_exceeded", "IPOPT reached its wall-time limit."),
+    "Not_Enough_Degrees_Of_Freedom": (
+        "too_few_degrees_of_freedom",
+        "The problem has more equality constraints than variables.",
+    ),
+    "Invalid_Problem_Definition": ("invalid_problem", "IPOPT rejected the problem definition."),
+    "Invalid_Option": ("invalid_option", "IPOPT rejected one of its options."),
+    "Invalid_Number_Detected": (
+        "invalid_number",
+        "IPOPT got NaN or inf from a function evaluation (check the state, parameters and initial guess).",
+    ),
+    "Unrecoverable_Exception": ("solver_exception", "IPOPT raised an unrecoverable exception."),
+    "NonIpopt_Exception_Thrown": (
+        "solver_exception",
+        "A function called by IPOPT raised an exception.",
+    ),
+    "Insufficient_Memory": ("insufficient_memory", "IPOPT ran out of memory."),
+    "Internal_Error": ("internal_error", "IPOPT reported an internal error."),
+}
+
+
+def solver_status(solver: str, stats: dict) -> tuple[str, str]:
+    """A short name and a one-sentence reason for a solver's return status.
+
+    Args:
+        solver: ``"fatrop"`` or ``"ipopt"`` (the nlpsol plugin name).
+        stats: ``casadi.Function.stats()`` of the solver after the call.
+
+    Returns:
+        ``(name, reason)``; ``name`` is ``"success"`` for a converged solve. An unknown code gives
+        ``"<solver>_status_<raw code>"`` so the raw code is never lost.
+    """
+    solver = solver.lower()
+    raw = stats.get("return_status")
+    if solver == "fatrop":
+        inner = stats.get("fatrop") if isinstance(stats.get("fatrop"), dict) else {}
+        flag = inner.get("return_flag")
+        if raw == -1 or raw == "-1":  # Fatrop's C interface caught an exception before a flag was set
+            return "solver_exception", "Fatrop raised an internal exception (its C interface returned -1)."
+        if flag is not None:
+            try:
+                flag = int(flag)
+            except (TypeError, ValueError):
+                return f"fatrop_status_{flag}", f"Fatrop returned the unknown flag {flag!r}."
+            if flag in FATROP_FLAGS:
+                return FATROP_FLAGS[flag]
+            return (
+                f"fatrop_status_{flag}",
+                f"Fatrop returned the unknown flag {flag} (return_status {raw!r}).",
+            )
+        # No detailed flag (stats from another plugin version): only the C return value is known.
+        if raw in (0, "0") or (raw is None and stats.get("success")):
+            return FATROP_FLAGS[0]
+        if raw in (1, "1"):
+            return "fatrop_failed", "Fatrop did not converge (its stats give no detailed return flag)."
+        return f"fatrop_status_{raw}", f"Fatrop returned the unknown status {raw!r}."
+    if solver == "ipopt":
+        if isinstance(raw, str) and raw in IPOPT_STATUSES:
+            return IPOPT_STATUSES[raw]
+        return f"ipopt_status_{raw}", f"IPOPT returned the unknown status {raw!r}."
+    if stats.get("success"):
+        return SUCCESS, f"{solver} reported success."
+    return f"{solver}_status_{raw}", f"{solver} returned status {raw!r}."
+
+
+def exception_status(exc: BaseException) -> tuple[str, str]:
+    """A short name and a one-sentence reason for an exception raised by a solver call.
+
+    Args:
+        exc: The exception (CasADi raises ``RuntimeError`` with the evaluation error in its message).
+
+    Returns:
+        ``("nan_in_evaluation", ...)`` when the message mentions NaN or inf, ``"evaluation_error"`` for a
+        failed function evaluation, else ``"solver_exception"``; the reason quotes the first message line.
+    """
+    text = str(exc).strip()
+    first = text.splitlines()[0] if text else type(exc).__name__
+    if len(first) > 160:
+        first = first[:157] + "..."
+    lower = text.lower()
+    if (
+        "nan" in lower.split()
+        or "nan detected" in lower
+        or "inf detected" in lower
+        or "invalid number" in lower
+    ):
+        return "nan_in_evaluation", f"A function evaluation returned NaN or inf: {first}"
+    if "failed" in lower and ("eval" in lower or "function::call" in lower):
+        return "evaluation_error", f"A function evaluation failed: {first}"
+    return "solver_exception", f"The solver raised {type(exc).__name__}: {first}"
+
+
+# --- findings -------------------------------------------------------------------------------------------
+@dataclass
+class Finding:
+    """One result of a precheck.
+
+    Attributes:
+        code: Short machine-readable name, e.g. ``"ee_force_exceeds_torque_limit"``.
+        severity: ``"error"``: the command cannot be met as given (a limit is exceeded, the solve will fail
+            or the plan will not track it); ``"warning"``: suspicious or close to a limit.
+        message: One sentence naming the problem and its numbers.
+        data: The numbers, JSON-serialisable (for logs and run summaries).
+    """
+
+    code: str
+    severity: Severity
+    message: str
+    data: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def __str__(self) -> str:
+        return f"[{self.severity}] {self.code}: {self.message}"
+
+
+def findings_to_dicts(findings: Iterable[Finding]) -> list[dict]:
+    """Findings as plain dicts (for a plan's metadata or a run summary)."""
+    return [f.to_dict() for f in findings]
+
+
+def has_errors(findings: Iterable[Finding]) -> bool:
+    return any(f.severity == "error" for f in findings)
+
+
+# Fraction of a torque limit above which a hold torque is reported as a warning.
+TORQUE_WARNING_FRACTION = 0.9
+
+
+def ee_force_feasibility(
+    robot: Robot,
+    q: np.ndarray,
+    ee_force: np.ndarray,
+    mu: float | None = None,
+) -> list[Finding]:
+    """Can the arm hold the commanded end-effector force in the current pose, and can the feet?
+
+    The static arm torques are those of :mod:`wbmpc.statics`: ``tau = g(q) - J^T F`` restricted to the arm
+    joints, with ``J`` the ``LOCAL_WORLD_ALIGNED`` linear Jacobian of the end-effector frame and ``F`` the
+    force the environment applies on the end effector (``Commands.ee_force``, world axes). Velocity and
+    acceleration terms are ignored (the arm is assumed slow).
+
+    Args:
+        robot: The robot (nothing is checked without an arm; see :func:`arm_commands_without_arm`).
+        q: Configuration (nq,).
+        ee_force: Force [N] on the end effector, world axes (3,).
+        mu: Foot friction coefficient; when given, a horizontal force larger than ``mu`` times the normal
+            load on the feet is reported (the feet would slip).
+
+    Returns:
+        ``ee_force_exceeds_torque_limit`` (error, one per joint over its limit),
+        ``ee_force_near_torque_limit`` (warning, above 90 % of the limit), ``ee_force_lifts_robot``
+        (error, upward force above the weight: the stance feet would have to pull),
+        ``ee_force_exceeds_friction`` (error).
+    """
+    force = np.asarray(ee_force, dtype=float).reshape(3)
+    findings: list[Finding] = []
+    weight = _info(robot).weight
+    if force[2] > weight:
+        findings.append(
+            Finding(
+                "ee_force_lifts_robot",
+                "error",
+                f"upward end-effector force {force[2]:.1f} N exceeds the robot's weight {weight:.1f} N: "
+                "the stance feet would have to pull on the ground",
+                {"force_z": float(force[2]), "weight": float(weight)},
+            )
+        )
+    elif mu is not None:
+        normal = weight - force[2]  # what the feet press on the ground with
+        horizontal = float(np.hypot(force[0], force[1]))
+        if horizontal > mu * normal:
+            findings.append(
+                Finding(
+                    "ee_force_exceeds_friction",
+                    "error",
+                    f"horizontal end-effector force {horizontal:.1f} N exceeds the feet's friction "
+                    f"{mu:.2f} x {normal:.1f} N = {mu * normal:.1f} N: the feet would slip",
+                    {"horizontal": horizontal, "normal": float(normal), "mu": float(mu)},
+                )
+            )
+    if not robot.has_arm:
+        return findings
+    tau, names, limits = arm_hold_torques(robot, q, force)
+    for name, needed, limit in zip(names, tau, limits, strict=True):
+        ratio = abs(needed) / limit if limit > 0 else math.inf
+        data = {"joint": name, "needed": float(needed), "limit": float(limit), "force": force.tolist()}
+        if ratio > 1.0:
+            findings.append(
+                Finding(
+                    "ee_force_exceeds_torque_limit",
+                    "error",
+                    f"holding end-effector force {_vec(force)} N needs {abs(needed):.1f} N m at {name}, "
+                    f"above its {limit:.1f} N m limit",
+                    data,
+                )
+            )
+        elif ratio > TORQUE_WARNING_FRACTION:
+            findings.append(
+                Finding(
+                    "ee_force_near_torque_limit",
+                    "warning",
+                    f"holding end-effector force {_vec(force)} N needs {abs(needed):.1f} N m at {name}, "
+                    f"{100 * ratio:.0f} % of its {limit:.1f} N m limit",
+                    data,
+                )
+            )
+    return findings
+
+
+def arm_hold_torques(
+    robot: Robot, q: np.ndarray, ee_force: np.ndarray
+) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Static arm joint torques [N m] holding ``ee_force`` (on the end effector, world axes) and gravity.
+
+    Returns:
+        Torques ``g_arm(q) - J_arm^T F`` (n_arm,), the arm joint names and their torque limits [N m].
+    """
+    info = _info(robot)
+    if info.ee_id is None:
+        raise ValueError(f"{robot.name} has no arm")
+    q = np.asarray(q, dtype=float)
+    idx = info.arm_idx
+    J = pin.computeFrameJacobian(info.model, info.data, q, info.ee_id, pin.LOCAL_WORLD_ALIGNED)
+    gravity = pin.computeGeneralizedGravity(info.model, info.data, q)
+    tau = gravity[idx] - J[:3, idx].T @ np.asarray(ee_force, dtype=float).reshape(3)
+    return tau, list(info.arm_names), info.arm_limits.copy()
+
+
+# Share of the kinematic reach a foot may use on each side of its nominal position before a warning.
+STRIDE_COMFORT_FRACTION = 0.5
+# Commanded speeds below these are treated as zero [m/s], [rad/s].
+SPEED_TOLERANCE = 1e-3
+
+
+def leg_reach(robot: Robot, q: np.ndarray | None = None) -> dict:
+    """Horizontal reach [m] of the feet about their nominal positions, from the leg kinematics and limits.
+
+    For each foot, the last two joints above it (thigh and calf of a Unitree leg) give the links
+    ``l1`` (thigh joint to calf joint) and ``l2`` (calf joint to foot). The knee bend is limited by the calf
+    joint range, so the thigh-joint-to-foot distance is at most ``d = |p_calf + R_y(theta) p_foot|`` at the
+    least-bent knee angle ``theta`` in the range. Keeping the thigh joint at its height ``h`` above the foot,
+    the foot can then be at most ``sqrt(d^2 - h^2)`` from the point below the thigh joint; minus the
+    foot's horizontal offset from that point, that is its reach ``R`` about the nominal position. The
+    leg is assumed to swing about its y axis (pitch), the same reach is used in every horizontal
+    direction.
+
+    Args:
+        robot: The robot.
+        q: Configuration (nq,); the nominal pose by default.
+
+    Returns:
+        ``{"reach": min over feet [m], "per_foot": {foot: reach}, "hip_height": mean h [m],
+        "leg_length": mean l1 + l2 [m]}``.
+    """
+    model, data = robot.model, _data(robot)
+    q = robot.q_nominal if q is None else np.asarray(q, dtype=float)
+    pin.framesForwardKinematics(model, data, q)
+    per_foot, heights, lengths = {}, [], []
+    for foot in robot.foot_frames:
+        frame = model.frames[robot.frame_id(foot)]
+        calf = frame.parentJoint
+        thigh = model.parents[calf]
+        p_calf = model.jointPlacements[calf].translation  # in the thigh joint frame
+        p_foot = frame.placement.translation  # in the calf joint frame
+        lo, hi = model.lowerPositionLimit[model.idx_qs[calf]], model.upperPositionLimit[model.idx_qs[calf]]
+        angles = (
+            np.linspace(lo, hi, 61) if np.isfinite(lo) and np.isfinite(hi) else np.linspace(-np.pi, np.pi, 61)
+        )
+        c, s = np.cos(angles), np.sin(angles)
+        # R_y(theta) p_foot for every angle (the calf axis is y on Unitree legs).
+        rotated = np.stack(
+            [c * p_foot[0] + s * p_foot[2], np.full_like(c, p_foot[1]), -s * p_foot[0] + c * p_foot[2]]
+        )
+        d_max = float(np.max(np.linalg.norm(p_calf[:, None] + rotated, axis=0)))
+        hip = data.oMi[thigh].translation
+        foot_pos = data.oMf[robot.frame_id(foot)].translation
+        h = float(hip[2] - foot_pos[2])
+        offset = float(np.linalg.norm(foot_pos[:2] - hip[:2]))
+        per_foot[foot] = max(0.0, math.sqrt(max(d_max**2 - h**2, 0.0)) - offset)
+        heights.append(h)
+        lengths.append(float(np.linalg.norm(p_calf) + np.linalg.norm(p_foot)))
+    return {
+        "reach": min(per_foot.values()),
+        "per_foot": per_foot,
+        "hip_height": float(np.mean(heights)),
+        "leg_length": float(np.mean(lengths)),
+    }
+
+
+def speed_feasibility(
+    robot: Robot,
+    gait: Gait,
+    base_linear_velocity: np.ndarray,
+    base_angular_velocity: np.ndarray,
+) -> list[Finding]:
+    """Is the commanded base speed within what the gait can produce?
+
+    Rule: a stance foot stays on the ground while the base moves over it, so relative to the base it travels
+    a stride ``s = u * T_stance`` with ``u`` the foot's horizontal speed relative to the base
+    (``|v_xy + omega_z x p_foot|``, ``p_foot`` its nominal position from the base) and ``T_stance = (1 -
+    swing_fraction) * period``. Centred on its nominal position, it spans ``+-s/2``. Error when ``s/2``
+    exceeds the kinematic reach ``R`` of :func:`leg_reach` (impossible); warning when ``s/2`` exceeds
+    ``STRIDE_COMFORT_FRACTION * R`` (the legs end the stance near full stretch, no margin left for balance).
+    For the default B1 (``R`` = 0.46 m) and a 0.8 s trot (0.4 s stance) that is 1.14 m/s (warning) and
+    2.29 m/s (error). A gait without swing (``stand``) can only reach a speed by leaning: any speed is a
+    warning. Vertical, roll and pitch rates cannot be held at all: warning.
+
+    Args:
+        robot: The robot.
+        gait: The gait schedule.
+        base_linear_velocity: Commanded base velocity [m/s], heading frame (3,).
+        base_angular_velocity: Commanded base angular velocity [rad/s], heading frame (3,).
+
+    Returns:
+        ``speed_without_stepping`` (warning), ``speed_beyond_gait`` (warning or error),
+        ``unsustainable_velocity`` (warning).
+    """
+    v = np.asarray(base_linear_velocity, dtype=float).reshape(3)
+    w = np.asarray(base_angular_velocity, dtype=float).reshape(3)
+    findings: list[Finding] = []
+    if abs(v[2]) > SPEED_TOLERANCE or np.any(np.abs(w[:2]) > SPEED_TOLERANCE):
+        findings.append(
+            Finding(
+                "unsustainable_velocity",
+                "warning",
+                f"vertical velocity {v[2]:.2f} m/s or roll/pitch rates {_vec(w[:2])} rad/s cannot be held "
+                "by a standing or walking robot",
+                {"v_z": float(v[2]), "roll_rate": float(w[0]), "pitch_rate": float(w[1])},
+            )
+        )
+    planar = float(np.hypot(v[0], v[1]))
+    if planar <= SPEED_TOLERANCE and abs(w[2]) <= SPEED_TOLERANCE:
+        return findings
+    if gait.swing_fraction <= 0.0:
+        findings.append(
+            Finding(
+                "speed_without_stepping",
+                "warning",
+                f"gait {gait.name!r} never lifts a foot: speed {planar:.2f} m/s, yaw rate {w[2]:.2f} rad/s "
+                "can only be reached by leaning, not sustained",
+                {"gait": gait.name, "speed": planar, "yaw_rate": float(w[2])},
+            )
+        )
+        return findings
+    geometry, rel = _nominal_geometry(robot)
+    reach = geometry["reach"]
+    stance = (1.0 - gait.swing_fraction) * gait.period
+    # Foot speed relative to the base: v_xy + omega_z x p (p: nominal foot position from the base).
+    foot_speed = np.linalg.norm(v[:2][None, :] + w[2] * np.stack([-rel[:, 1], rel[:, 0]], axis=1), axis=1)
+    u = float(foot_speed.max())
+    half_stride = 0.5 * u * stance
+    data_out = {
+        "gait": gait.name,
+        "speed": planar,
+        "yaw_rate": float(w[2]),
+        "foot_speed": u,
+        "stance_duration": stance,
+        "stride": 2.0 * half_stride,
+        "reach": reach,
+        "max_speed": 2.0 * reach / stance,
+        "comfortable_speed": 2.0 * STRIDE_COMFORT_FRACTION * reach / stance,
+    }
+    if half_stride > reach:
+        severity, what = "error", f"beyond the legs' reach of +-{reach:.2f} m"
+    elif half_stride > STRIDE_COMFORT_FRACTION * reach:
+        severity, what = (
+            "warning",
+            f"over {100 * STRIDE_COMFORT_FRACTION:.0f} % of the legs' reach of +-{reach:.2f} m",
+        )
+    else:
+        return findings
+    findings.append(
+        Finding(
+            "speed_beyond_gait",
+            severity,
+            f"{gait.name} with {stance:.2f} s stance at speed {planar:.2f} m/s "
+            f"(yaw rate {w[2]:.2f} rad/s) needs a {2 * half_stride:.2f} m stride "
+            f"(+-{half_stride:.2f} m about the nominal foot position), {what}; "
+            f"max {data_out['max_speed']:.2f} m/s, comfortable {data_out['comfortable_speed']:.2f} m/s",
+            data_out,
+        )
+    )
+    return findings
+
+
+def joint_state_limits(robot: Robot, q: np.ndarray, v: np.ndarray, tol: float = 1e-6) -> list[Finding]:
+    """Joint positions outside their limits and joint speeds above their limits.
+
+    Args:
+        robot: The robot.
+        q: Configuration (nq,).
+        v: Velocity (nv,).
+        tol: Allowed excess [rad], [rad/s] (rounding).
+
+    Returns:
+        ``state_not_finite``, ``joint_position_limit``, ``joint_velocity_limit`` (errors), each naming
+        the joints and their values.
+    """
+    q = np.asarray(q, dtype=float)
+    v = np.asarray(v, dtype=float)
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+        bad = [int(i) for i in np.flatnonzero(~np.isfinite(np.concatenate([q, v])))]
+        return [
+            Finding("state_not_finite", "error", f"state has NaN or inf at indices {bad}", {"indices": bad})
+        ]
+    findings: list[Finding] = []
+    info = _info(robot)
+    names, lower, upper = info.joint_names, info.lower, info.upper
+    qj = q[7:]
+    out = np.flatnonzero((qj < lower - tol) | (qj > upper + tol))
+    if out.size:
+        items = [
+            {"joint": names[i], "value": float(qj[i]), "lower": float(lower[i]), "upper": float(upper[i])}
+            for i in out
+        ]
+        text = ", ".join(
+            f"{d['joint']} = {d['value']:.3f} rad not in [{d['lower']:.3f}, {d['upper']:.3f}]" for d in items
+        )
+        findings.append(
+            Finding(
+                "joint_position_limit", "error", f"joint positions outside limits: {text}", {"joints": items}
+            )
+        )
+    vmax = info.velocity_limits
+    vj = v[6:]
+    fast = np.flatnonzero(np.abs(vj) > vmax + tol)
+    if fast.size:
+        items = [{"joint": names[i], "value": float(vj[i]), "limit": float(vmax[i])} for i in fast]
+        text = ", ".join(f"{d['joint']} = {d['value']:.2f} rad/s above {d['limit']:.2f}" for d in items)
+        findings.append(
+            Finding("joint_velocity_limit", "error", f"joint speeds above limits: {text}", {"joints": items})
+        )
+    return findings
+
+
+def arm_commands_without_arm(robot: Robot, commands) -> list[Finding]:
+    """End-effector velocity or force commands given to a robot without an arm.
+
+    Args:
+        robot: The robot.
+        commands: A :class:`wbmpc.mpc.Commands` (``ee_velocity`` (3,) or (3, N-1), ``ee_force`` (3,)).
+
+    Returns:
+        ``arm_command_without_arm`` (error) naming the ignored commands, or nothing.
+    """
+    if robot.has_arm or commands is None:
+        return []
+    given = {}
+    for name in ("ee_velocity", "ee_force"):
+        value = np.asarray(getattr(commands, name, np.zeros(3)), dtype=float)
+        if value.size and np.any(value != 0.0):
+            given[name] = float(np.max(np.abs(value)))
+    if not given:
+        return []
+    text = ", ".join(f"{k} (max |component| {val:.3g})" for k, val in given.items())
+    return [
+        Finding(
+            "arm_command_without_arm",
+            "error",
+            f"{robot.name} has no arm, but the commands set {text}",
+            {"robot": robot.name, "commands": given},
+        )
+    ]
+
+
+def run_prechecks(
+    robot: Robot,
+    q: np.ndarray,
+    v: np.ndarray,
+    commands=None,
+    gait: Gait | None = None,
+    mu: float | None = None,
+) -> list[Finding]:
+    """Run every precheck on a solve request (cheap: well under a millisecond in total).
+
+    Args:
+        robot: The robot.
+        q: Measured configuration (nq,).
+        v: Measured velocity (nv,).
+        commands: :class:`wbmpc.mpc.Commands`, or ``None`` (no command checks).
+        gait: The gait, or ``None`` (no speed check).
+        mu: Friction coefficient for the end-effector force check, or ``None``.
+
+    Returns:
+        All findings, errors first.
+    """
+    findings = joint_state_limits(robot, q, v)
+    if commands is not None:
+        findings += arm_commands_without_arm(robot, commands)
+        state_ok = not any(f.code == "state_not_finite" for f in findings)
+        ee_force = np.asarray(getattr(commands, "ee_force", np.zeros(3)), dtype=float)
+        if state_ok and ee_force.shape == (3,) and np.all(np.isfinite(ee_force)):
+            findings += ee_force_feasibility(robot, q, ee_force, mu)
+        if gait is not None:
+            findings += speed_feasibility(
+                robot, gait, commands.base_linear_velocity, commands.base_angular_velocity
+            )
+    return sorted(findings, key=lambda f: f.severity != "error")
+
+
+# --- closed-loop reporting -------------------------------------------------------------------------------
+class FailureReporter:
+    """Print one line the first time each failure reason (or finding code) occurs; count them all.
+
+    Meant for a closed loop, where the same failure may repeat on every tick. Keys are the short names
+    (:func:`solver_status` names, finding codes), so a reason whose numbers change between ticks prints
+    once.
+
+    Args:
+        stream: Where to print (``sys.stdout`` at print time by default).
+        prefix: Start of every printed line.
+        enabled: ``False`` counts without printing.
+    """
+
+    def __init__(self, stream: TextIO | None = None, prefix: str = "wbmpc", enabled: bool = True):
+        self.stream = stream
+        self.prefix = prefix
+        self.enabled = enabled
+        self.failures: dict[str, int] = {}
+        self.findings: dict[str, int] = {}
+        self.first_time: dict[str, float] = {}
+        self.reasons: dict[str, str] = {}
+
+    def report(self, t: float, name: str, reason: str = "") -> bool:
+        """Count a failed solve at time ``t`` [s]; print it if ``name`` is new. Returns whether it printed.
+
+        A ``"success"`` name is ignored.
+        """
+        if name == SUCCESS:
+            return False
+        return self._count(self.failures, t, name, reason, "solve failed")
+
+    def report_status(self, t: float, success: bool, solver: str, stats: dict) -> tuple[str, str]:
+        """Name a solve's status with :func:`solver_status`, report it if it failed, and return it."""
+        name, reason = solver_status(solver, stats)
+        if not success:
+            self.report(t, name if name != SUCCESS else "not_converged", reason)
+        return name, reason
+
+    def report_findings(self, t: float, findings: Sequence[Finding]) -> int:
+        """Count precheck findings at time ``t`` [s]; print each new code once. Returns how many printed."""
+        printed = 0
+        for f in findings:
+            printed += self._count(self.findings, t, f.code, f.message, f"precheck {f.severity}")
+        return printed
+
+    def summary(self) -> dict:
+        """Counts for the run summary: ``{"failures": n, "failure_reasons": {name: count}, "findings":
+        {code: count}, "first_time": {name: t}, "reasons": {name: first reason}}``."""
+        return {
+            "failures": int(sum(self.failures.values())),
+            "failure_reasons": dict(self.failures),
+            "findings": dict(self.findings),
+            "first_time": dict(self.first_time),
+            "reasons": dict(self.reasons),
+        }
+
+    def _count(self, counts: dict, t: float, name: str, reason: str, kind: str) -> bool:
+        new = name not in counts
+        counts[name] = counts.get(name, 0) + 1
+        if not new:
+            return False
+        self.first_time.setdefault(name, float(t))
+        self.reasons.setdefault(name, reason)
+        if self.enabled:
+            stream = self.stream if self.stream is not None else sys.stdout
+            text = f": {reason}" if reason else ""
+            print(
+                f"{self.prefix} t={t:.3f} s: {kind}: {name}{text} (further occurrences counted, not printed)",
+                file=stream,
+            )
+        return True
+
+
+# --- helpers --------------------------------------------------------------------------------------------
+@dataclass
+class _RobotInfo:
+    """What the checks need from a robot, computed once per model (the Robot properties walk the model)."""
+
+    model: pin.Model
+    data: pin.Data
+    weight: float
+    joint_names: list[str]
+    arm_names: list[str]
+    arm_idx: np.ndarray
+    arm_limits: np.ndarray
+    ee_id: int | None
+    lower: np.ndarray
+    upper: np.ndarray
+    velocity_limits: np.ndarray
+    reach: dict | None = None
+    foot_offsets: np.ndarray | None = None  # nominal foot positions from the base, x-y (n_feet, 2)
+
+
+_INFO: dict[int, _RobotInfo] = {}
+
+
+def _info(robot: Robot) -> _RobotInfo:
+    """Cached per-model data; rebuilt if another model took the same id."""
+    model = robot.model
+    info = _INFO.get(id(model))
+    if info is None or info.model is not model:
+        arm_names = list(robot.arm_joint_names)
+        arm_idx = np.array([robot.joint_index_v(n) for n in arm_names], dtype=int)
+        info = _RobotInfo(
+            model=model,
+            data=model.createData(),
+            weight=robot.mass * robot.gravity,
+            joint_names=robot.joint_names,
+            arm_names=arm_names,
+            arm_idx=arm_idx,
+            arm_limits=model.effortLimit[arm_idx].copy(),
+            ee_id=robot.frame_id(robot.ee_frame) if robot.has_arm else None,
+            lower=model.lowerPositionLimit[7:].copy(),
+            upper=model.upperPositionLimit[7:].copy(),
+            velocity_limits=model.velocityLimit[6:].copy(),
+        )
+        _INFO[id(model)] = info
+    return info
+
+
+def _data(robot: Robot) -> pin.Data:
+    return _info(robot).data
+
+
+def _nominal_geometry(robot: Robot) -> tuple[dict, np.ndarray]:
+    """Leg reach and nominal foot offsets from the base, computed once per model."""
+    info = _info(robot)
+    if info.reach is None:
+        info.reach = leg_reach(robot)
+        q0 = robot.q_nominal
+        pin.framesForwardKinematics(info.model, info.data, q0)
+        info.foot_offsets = np.array(
+            [info.data.oMf[robot.frame_id(f)].translation[:2] - q0[:2] for f in robot.foot_frames]
+        )
+    return info.reach, info.foot_offsets
+
+
+def _vec(x) -> str:
+    return "[" + ", ".join(f"{float(c):.1f}" for c in np.ravel(x)) + "]"
