@@ -7,7 +7,7 @@ import pytest
 from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop, tilt
 from wbmpc.gait import make_gait
 from wbmpc.mpc import Commands, MPCConfig, WholeBodyMPC
-from wbmpc.ocp import OCPSettings
+from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.robot import load_b1_z1
 
 TOL = 1e-3  # the solver tolerance (paper)
@@ -26,10 +26,27 @@ def standing(robot):
     return mpc, plan
 
 
-def test_decision_variables_match_the_paper(standing):
+def test_decision_variables_match_the_paper(standing, robot):
     mpc, _ = standing
-    # Paper, Table I: 1226 decision variables for the inverse-dynamics MPC with 15 nodes and tau on 3 nodes.
-    assert mpc.ocp.n_variables == 1226
+    # Paper, Table I: 1226 decision variables for the inverse-dynamics MPC with 15 nodes and tau on 3 nodes,
+    # counting the arm force pinned to its command on the 14 stages; as a parameter it drops 42 of them.
+    assert OCP(robot, OCPSettings(n_nodes=15, ee_force_input=True)).n_variables == 1226
+    assert mpc.ocp.n_variables == 1226 - 3 * 14
+
+
+def test_the_arm_force_as_parameter_gives_the_same_plan(robot):
+    """The paper's pinned arm-force input and the parameter give the same optimum (3 inputs fewer)."""
+    commands = Commands(ee_force=np.array([5.0, 0.0, -20.0]), base_linear_velocity=np.array([0.2, 0.0, 0.0]))
+    plans = []
+    for ee_force_input in (True, False):
+        settings = OCPSettings(n_nodes=8, ee_force_input=ee_force_input)
+        mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), dt_max=0.06))
+        plans.append(mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0, commands=commands))
+    pinned, parameter = plans
+    assert pinned.success and parameter.success
+    np.testing.assert_allclose(parameter.tau, pinned.tau, atol=1e-6)
+    np.testing.assert_allclose(parameter.forces, pinned.forces, atol=1e-6)
+    np.testing.assert_allclose(parameter.forces[:, -1], np.tile(commands.ee_force, (7, 1)))
 
 
 def test_fatrop_detects_the_stage_structure(standing):
@@ -37,7 +54,7 @@ def test_fatrop_detects_the_stage_structure(standing):
     stats = mpc._solver(cold=True).stats()
     expected = mpc.ocp.stage_sizes()
     assert list(stats["nx"]) == expected["nx"] == [44] * 15
-    assert list(stats["nu"]) == expected["nu"] == [53] * 3 + [37] * 11 + [0]
+    assert list(stats["nu"]) == expected["nu"] == [50] * 3 + [34] * 11 + [0]
     assert list(stats["ng"]) == expected["ng"]
 
 

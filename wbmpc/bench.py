@@ -48,6 +48,8 @@ def run_case(
     kp: float = 0.0,
     kd: float = 0.0,
     gate=None,
+    ee_force_input: bool = False,
+    compile_flags: tuple[str, ...] | None = None,
 ) -> dict:
     """One closed-loop run; statistics over the solves after the warm-up.
 
@@ -55,6 +57,8 @@ def run_case(
         kp, kd: Low-level joint PD gains [N m/rad], [N m s/rad] (0: pure feed-forward torques).
         gate: Optional ``gate(mpc)`` called once the solvers are built; it may wrap ``mpc.solve`` (the
             ``--blasfeo both`` workers pause there between batches, outside the timed solver call).
+        ee_force_input: The paper's layout (arm force as a pinned input, see :class:`wbmpc.ocp.OCPSettings`).
+        compile_flags: gcc flags of the compiled library (default: the MPC's).
     """
     from wbmpc import blasfeo
     from wbmpc.closed_loop import ClosedLoopConfig, machine_description, run_closed_loop
@@ -63,7 +67,10 @@ def run_case(
     from wbmpc.ocp import OCPSettings
 
     config = MPCConfig(gait=make_gait("trot"), solver=solver, compiled=compiled)
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes, formulation=formulation), config)
+    if compile_flags is not None:
+        config.compile_flags = tuple(compile_flags)
+    settings = OCPSettings(n_nodes=nodes, formulation=formulation, ee_force_input=ee_force_input)
+    mpc = WholeBodyMPC(robot, settings, config)
     mpc.verbose = progress
     start = time.perf_counter()
     mpc._solver(cold=True)  # build (or load from the cache) before timing anything

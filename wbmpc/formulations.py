@@ -89,6 +89,9 @@ class Formulation:
         self.nv = smodel.nv
         self.nj = smodel.nv - 6
         self.nf = 3 * len(self.contact_frames)
+        #: Size of the force block of the weights ``R = [a, F, tau_j]`` (every contact frame, also those
+        #: whose force is a parameter rather than an input).
+        self.n_force_weights = self.nf
         self.mass = float(sum(inertia.mass for inertia in self.model.inertias))
 
     # --- layout ---------------------------------------------------------------------------------------
@@ -168,7 +171,8 @@ class Formulation:
         if "a_j" in st.blocks:
             terms.append((st.blocks["a_j"], slice(6, self.nv)))
         if st.tau is not None:
-            terms.append((st.tau, slice(self.nv + self.nf, self.nv + self.nf + self.nj)))
+            start = self.nv + self.n_force_weights
+            terms.append((st.tau, slice(start, start + self.nj)))
         return terms
 
     def initial_state(self, st: StageVariables, q_hat: ca.SX, v_hat: ca.SX) -> ca.SX:

@@ -50,11 +50,16 @@ class OCPSettings:
         n_nodes: Number of nodes including the terminal one (paper: 15).
         n_tau_nodes: Nodes ``k < n_tau_nodes`` carry joint torques and torque limits (paper: k <= 2).
         formulation: Dynamics formulation name, one of :data:`wbmpc.formulations.FORMULATIONS`.
+        ee_force_input: Keep the commanded end-effector force as a decision variable pinned by an
+            equality row on every stage, as in the paper's layout (its Table I counts those variables).
+            ``False`` (default) enters the command as the parameter it is: 3 inputs and 3 equality rows
+            fewer per stage, the same optimum.
     """
 
     n_nodes: int = 15
     n_tau_nodes: int = 3
     formulation: str = "inverse_dynamics"
+    ee_force_input: bool = False
 
     def __post_init__(self):
         if (
@@ -155,10 +160,14 @@ class OCP:
         self.robot = robot
         self.settings = settings or OCPSettings()
         self.smodel = cpin.SymbolicModel(robot.model)
-        self.formulation = make_formulation(self.settings.formulation, self.smodel, robot.contact_frames)
+        # Frames whose forces are decision variables: the feet, and the end effector in the paper's layout.
+        ee_input = robot.has_arm and self.settings.ee_force_input
+        self.force_frames = list(robot.contact_frames) if ee_input else list(robot.foot_frames)
+        self.formulation = make_formulation(self.settings.formulation, self.smodel, self.force_frames)
         self.n_feet = robot.n_feet
         self.nv, self.nq, self.nj = robot.nv, robot.nq, robot.nj
         self.nf = 3 * len(robot.contact_frames)
+        self.formulation.n_force_weights = self.nf
         self._build()
 
     # --- layout --------------------------------------------------------------------------------------------
@@ -311,15 +320,16 @@ class OCP:
         if has_input:
             contact = sp["contact"]
             F = st.forces
+            ee_input = F.numel() > 3 * self.n_feet
             f_des = ca.vertcat(
                 *[ca.vertcat(0, 0, sp["force_des"][i]) for i in range(self.n_feet)],
-                *([p["ee_force"]] if robot.has_arm else []),
+                *([p["ee_force"]] if ee_input else []),
             )
-            R = p["R"]
-            cost += ca.dot(R[self.nv : self.nv + self.nf], (F - f_des) ** 2)
+            R = p["R"]  # weights of [a, F of every contact frame, tau] whatever the layout
+            cost += ca.dot(R[self.nv : self.nv + F.numel()], (F - f_des) ** 2)
             for expr, weights in form.regularization(st):
                 cost += ca.dot(R[weights], expr**2)
-            applied = self.applied_forces(st, contact)
+            applied = self.applied_forces(st, contact, p["ee_force"])
             # Gap-closing transition first (Fatrop structure detection).
             add("transition", x_next - form.transition(st, sp["dt"], data, applied), 0, 0)
         if k == 0:
@@ -339,7 +349,7 @@ class OCP:
                     (p["mu"] ** 2 * fz**2 - fx**2 - fy**2 + relax * big_force**2) / weight**2,
                 ]
             add("friction_cone", ca.vertcat(*cone), 0, np.inf)
-            if robot.has_arm:
+            if ee_input:
                 add("ee_force", F[3 * self.n_feet :] - p["ee_force"], 0, 0)
             if velocity_rows:
                 foot_rows = []
@@ -362,13 +372,14 @@ class OCP:
             add("joint_velocity_limits", st.v[6:], -v_max, v_max)
         return cost, rows
 
-    def applied_forces(self, st, contact) -> dict[str, ca.SX]:
+    def applied_forces(self, st, contact, ee_force) -> dict[str, ca.SX]:
         """Forces acting on the robot per contact frame: ``c_i F_i`` on the feet (a swing foot carries
-        none), the arm force as is."""
+        none), the arm force as is (its decision variable in the paper's layout, else the command)."""
         F = st.forces
         applied = {frame: contact[i] * F[3 * i : 3 * i + 3] for i, frame in enumerate(self.robot.foot_frames)}
         if self.robot.has_arm:
-            applied[self.robot.ee_frame] = F[3 * self.n_feet : 3 * self.n_feet + 3]
+            n = 3 * self.n_feet
+            applied[self.robot.ee_frame] = F[n : n + 3] if F.numel() > n else ee_force
         return applied
 
     def _plan_function(self, stages, P: ParameterLayout, dts) -> ca.Function:
@@ -388,7 +399,7 @@ class OCP:
                 v[k] = v[k - 1]
         a, forces, tau = [], [], []
         for k, st in enumerate(stages[:-1]):
-            applied = self.applied_forces(st, p["contact"][:, k])
+            applied = self.applied_forces(st, p["contact"][:, k], p["ee_force"])
             a_k = st.a
             if a_k is None:  # velocity level: joint accelerations by finite differences, base from the forces
                 a_j = (v[k + 1][6:] - v[k][6:]) / dts[k]
@@ -459,5 +470,6 @@ class OCP:
             parts.append(form.state_values(q, dq[s.k], v[s.k]))
             if s.u_offset is not None:
                 tau_k = tau[s.k] if s.k < len(tau) else None
-                parts.append(form.input_values(v[s.k], a[s.k], forces[s.k], tau_k, s.has_torque))
+                f_k = np.asarray(forces[s.k])[: len(self.force_frames)]  # decision-variable forces only
+                parts.append(form.input_values(v[s.k], a[s.k], f_k, tau_k, s.has_torque))
         return np.concatenate(parts)
