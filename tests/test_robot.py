@@ -115,3 +115,26 @@ def test_bad_input_is_named(kwargs, message):
 def test_unknown_pose_lookup(robot):
     with pytest.raises(RobotModelError, match="unknown pose 'lying'"):
         robot.pose("lying")
+
+
+def test_default_pose_follows_the_srdf_order():
+    """The SRDF lists standing_with_arm_up before standing_with_arm_home (alphabetically first)."""
+    robot = load_robot(URDF, SRDF, foot_frames=FEET, locked_joints=("joint5", "joint6", "jointGripper"))
+    assert robot.default_pose == "standing_with_arm_up"
+    assert list(robot.reference_poses) == ["standing_with_arm_up", "standing_with_arm_home"]
+
+
+@pytest.mark.parametrize("urdf_name", ["b1-z1.urdf", "b1.urdf"])
+def test_default_robots_inertials(urdf_name):
+    """Every link of the default robots has an inertial PyBullet uses as written, except the root link
+    ``base``: 1e-6 kg with every tensor entry 1e-6 kg m^2 (rank one, PyBullet zeroes it), a placeholder
+    under 1e-5 of the trunk's inertia that the check accepts as negligible."""
+    import xml.etree.ElementTree as ET
+
+    from wbmpc.robot import _inertia_defect, _read_inertials
+
+    urdf = URDF.parent / urdf_name
+    inertials = _read_inertials(urdf, ET.parse(urdf).getroot())
+    defects = {name: _inertia_defect(i.inertia) for name, i in inertials.items()}
+    assert {name for name, defect in defects.items() if defect} == {"base"}
+    assert "not all positive" in defects["base"] and inertials["base"].mass == 1e-6

@@ -6,14 +6,26 @@ skipped, with the reason, only if that server cannot start on the machine.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pinocchio as pin
 import pytest
 from conftest import fake_plan
 
 from wbmpc import viz
-from wbmpc.robot import load_b1_z1
-from wbmpc.viz import Viewer, ViewerUnavailableError, simplify_mesh, vertex_normals, visual_model
+from wbmpc.robot import load_b1_z1, load_robot
+from wbmpc.viz import (
+    Viewer,
+    ViewerUnavailableError,
+    camera_for_motion,
+    resolve_mesh_path,
+    simplify_mesh,
+    vertex_normals,
+    visual_model,
+)
+
+DATA = Path(__file__).parent / "data" / "quadruped_arm"
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +73,9 @@ def test_visual_model_matches_robot_model(robot):
 
 
 def test_visual_model_falls_back_to_primitives(robot, monkeypatch):
+    # Another package folder (a new cache entry) and mesh references that lead nowhere.
     monkeypatch.setattr(viz, "_package_dirs", lambda: ("/nonexistent/mesh/dir",))
+    monkeypatch.setattr(viz, "resolve_mesh_path", lambda filename, *args: "/nonexistent/mesh/dir/x.dae")
     with pytest.warns(UserWarning, match="primitive shapes"):
         model, geometry = visual_model(robot)
     assert model.nq == robot.model.nq
@@ -135,3 +149,86 @@ def test_animation_rejects_bad_times(viewer, robot):
         viewer.animation(qs, np.array([0.0, 0.2, 0.1]))
     with pytest.raises(ValueError, match="must match"):
         viewer.animation(qs, np.array([0.0, 0.1]))
+
+
+# --- meshes referenced relative to the URDF ------------------------------------------------------------
+def test_meshes_relative_to_the_urdf_are_found(recwarn):
+    """The test robot's base is "../meshes/cube.stl" and its legs "meshes/cube.obj" (12-triangle cubes)."""
+    robot = load_robot(
+        DATA / "urdf" / "quadruped_arm.urdf",
+        DATA / "srdf" / "quadruped_arm.srdf",
+        foot_frames=("FL_foot", "FR_foot", "RL_foot", "RR_foot"),
+        ee_frame="ee",
+    )
+    model, geometry = visual_model(robot)
+    assert not [w for w in recwarn if "primitive shapes" in str(w.message)]
+    meshes = {g.name: g for g in geometry.geometryObjects if g.meshPath.endswith((".stl", ".obj"))}
+    assert meshes["base_0"].meshPath == str((DATA / "meshes" / "cube.stl").resolve())
+    assert meshes["FL_leg_0"].meshPath == str((DATA / "urdf" / "meshes" / "cube.obj").resolve())
+    assert len(meshes) == 5 and all(g.geometry.num_tris == 12 for g in meshes.values())
+    base = meshes["base_0"].geometry  # scaled by the URDF's scale="0.6 0.3 0.15"
+    np.testing.assert_allclose(np.ptp(np.asarray(base.vertices()), axis=0), [0.6, 0.3, 0.15], atol=1e-9)
+
+
+def test_resolve_mesh_path(tmp_path):
+    description = tmp_path / "my_robot_description"
+    (description / "urdf").mkdir(parents=True)
+    (description / "meshes").mkdir()
+    mesh = description / "meshes" / "body.stl"
+    mesh.write_text("solid empty\nendsolid empty\n")
+    urdf = description / "urdf" / "robot.urdf"
+    expected = str(mesh.resolve())
+    assert resolve_mesh_path("../meshes/body.stl", urdf) == expected
+    assert resolve_mesh_path(f"file://{mesh}", urdf) == expected
+    # package:// against an ancestor named like the package, or a folder holding the package
+    assert resolve_mesh_path("package://my_robot_description/meshes/body.stl", urdf) == expected
+    assert resolve_mesh_path(
+        "package://my_robot_description/meshes/body.stl", "/elsewhere/r.urdf", [tmp_path]
+    ) == (expected)
+    assert resolve_mesh_path("package://other/meshes/body.stl", urdf) == "package://other/meshes/body.stl"
+
+
+# --- replay framing ------------------------------------------------------------------------------------
+def test_camera_is_set_from_the_motion_bounds():
+    base = np.array([[0.0, 0.0, 0.5], [1.0, 0.2, 0.5], [0.4, -0.2, 0.6]])
+    target, position = camera_for_motion(base, robot_radius=0.8)
+    np.testing.assert_allclose(target, [0.5, 0.0, 0.55])  # centre of the base box
+    direction = np.asarray(viz.CAMERA_DIRECTION) / np.linalg.norm(viz.CAMERA_DIRECTION)
+    np.testing.assert_allclose((position - target) / np.linalg.norm(position - target), direction)
+    # The sphere holding the motion (half the box diagonal + the robot radius) fills the vertical view.
+    radius = np.linalg.norm([1.0, 0.4, 0.1]) / 2 + 0.8
+    assert np.linalg.norm(position - target) == pytest.approx(radius / np.sin(np.radians(viz.CAMERA_FOV / 2)))
+    distances = []
+    for length in (0.0, 1.0, 3.0):
+        line = np.column_stack([np.linspace(0.0, length, 5), np.zeros(5), np.full(5, 0.5)])
+        target, position = camera_for_motion(line, robot_radius=0.8)
+        np.testing.assert_allclose(target, [length / 2, 0.0, 0.5])
+        distances.append(np.linalg.norm(position - target))
+    assert distances[0] < distances[1] < distances[2]
+
+
+def test_replay_frames_the_motion(viewer, robot, tmp_path):
+    """The nominal pose carried 1 m forward in 2 s: the camera looks at the middle of the path."""
+    times = np.linspace(0.0, 2.0, 11)
+    qs = np.tile(robot.q_nominal, (len(times), 1))
+    qs[:, 0] += np.linspace(0.0, 1.0, len(times))
+    viewer.animation(qs, times)
+    np.testing.assert_allclose(viewer.camera_target, [robot.q_nominal[0] + 0.5, *robot.q_nominal[1:3]])
+    expected = camera_for_motion(qs[:, :3], viz.robot_radius(viewer.model, viewer.geometry, robot.q_nominal))
+    np.testing.assert_allclose(viewer.camera_position, expected[1])
+    long_distance = np.linalg.norm(viewer.camera_position - viewer.camera_target)
+    viewer.animation(qs[:2], times[:2])  # 0.1 m: a closer camera
+    assert np.linalg.norm(viewer.camera_position - viewer.camera_target) < long_distance
+    assert viewer.export_html(tmp_path / "replay.html").stat().st_size > 10_000
+
+
+def test_robot_radius_holds_the_robot(robot):
+    model, geometry = visual_model(robot)
+    radius = viz.robot_radius(model, geometry, robot.q_nominal)
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, robot.q_nominal)
+    reach = max(
+        np.linalg.norm(data.oMf[robot.frame_id(f)].translation - robot.q_nominal[:3])
+        for f in robot.contact_frames
+    )
+    assert reach < radius < 2.0

@@ -4,6 +4,10 @@ A :class:`Robot` bundles what the MPC needs from a robot description: the reduce
 joints removed), foot frames in a fixed order, the arm end-effector frame, joint limits, the total mass and
 named reference configurations with the feet on the ground.
 
+Every description is checked before use: each link's mass and inertia must be ones that PyBullet (the
+simulated plant) loads as written, so the plant simulates the robot the MPC models (see
+:func:`load_robot`).
+
 Foot order everywhere in wbmpc follows the Pinocchio leg order of the Unitree URDFs:
 ``FL, FR, RL, RR`` (front-left, front-right, rear-left, rear-right).
 
@@ -14,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, distribution
@@ -32,8 +37,19 @@ B1_Z1_EXTRA_ARM_POSES = {
 }
 
 
+# An invalid inertia tensor whose largest principal moment is at most this share of the principal moments
+# of the rigid body the link belongs to is a negligible placeholder (PyBullet zeroes it: no visible effect).
+NEGLIGIBLE_INERTIA_RATIO = 1e-3
+ROOT_JOINT = "root_joint"  # Pinocchio's name of the free-flyer joint (also used in SRDF group states)
+_INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+_ZERO_INERTIAL = (
+    '<inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>'
+)
+
+
 class RobotModelError(ValueError):
-    """Raised for a robot description that cannot be used (missing file, unknown joint, frame or pose)."""
+    """Raised for a robot description that cannot be used (missing file, unknown joint, frame or pose,
+    or a link mass or inertia that the simulator would not load as written)."""
 
 
 def example_robot_data_dir() -> Path:
@@ -251,7 +267,10 @@ def load_robot(
         foot_frames: Foot frame names, in the order the MPC uses (FL, FR, RL, RR for a quadruped).
         ee_frame: Arm end-effector frame (may be one of ``extra_frames``), or ``None``.
         locked_joints: Joint names to remove; each is locked at its value in the reference pose.
-        reference_pose: SRDF pose used for locking and as the nominal configuration.
+        reference_pose: SRDF pose used for locking and as the nominal configuration. ``None`` picks, in the
+            SRDF's file order, the first ``<group_state>`` that places the floating base (one with a
+            ``root_joint`` entry, i.e. a pose of the whole robot), or the file's first ``<group_state>``
+            if none does; ``"reference"`` if ``q_reference`` is given.
         q_reference: Full-model configuration (nq of the unreduced model) used instead of an SRDF pose.
         extra_frames: Frames to add, ``{name: (parent_frame, (x, y, z))}``, offset [m] in the parent frame.
         extra_poses: Extra poses as joint-value overrides of the reference pose ``{pose: {joint: rad}}``.
@@ -261,9 +280,26 @@ def load_robot(
 
     Returns:
         The robot, with every reference pose shifted vertically so the lowest foot contact point is at z = 0.
+        ``reference_poses`` keeps the SRDF's order.
 
     Raises:
-        RobotModelError: missing file, unknown joint/frame/pose, or an inconsistent description.
+        RobotModelError: missing file, unknown joint/frame/pose, an inconsistent description, or a link
+            whose mass or inertia PyBullet would not simulate as written (all such links are listed).
+
+    Mass and inertia checks (PyBullet loads every URDF link as a body of its own, so the plant only matches
+    the MPC model if each link's ``<inertial>`` is used as written):
+
+    * every link needs an ``<inertial>`` with ``<mass value>`` and the six ``<inertia>`` attributes, all
+      finite numbers, mass >= 0. Without one, Pinocchio makes the link massless but PyBullet gives it 1 kg
+      and a unit inertia; a massless frame link (on a fixed joint) needs an explicit zero inertial;
+    * the root link needs a positive mass of its own: PyBullet welds a root link of zero mass to the world;
+    * a non-zero inertia tensor must be positive definite and satisfy the triangle inequalities of its
+      principal moments (I1 + I2 >= I3 and permutations), else PyBullet replaces it with zero. A tensor
+      at most ``NEGLIGIBLE_INERTIA_RATIO`` of the rigid body it belongs to (the links joined by fixed or
+      locked joints) is accepted as a negligible placeholder;
+    * every rigid body that moves (the floating base, and each movable joint's links with the links fixed
+      to them) needs a positive mass and a positive-definite rotational inertia, else its dynamics are
+      singular.
     """
     urdf = Path(urdf)
     if not urdf.is_file():
@@ -274,6 +310,8 @@ def load_robot(
         raise RobotModelError("foot_frames must name at least one foot frame")
     if not 0.0 < front_force_ratio < 1.0:
         raise RobotModelError(f"front_force_ratio must be in (0, 1), got {front_force_ratio}")
+    urdf_root = _parse_xml(urdf)
+    inertials = _read_inertials(urdf, urdf_root)  # malformed or missing inertials: raised before Pinocchio
     full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
 
     for frame_name, (parent, offset) in (extra_frames or {}).items():
@@ -306,10 +344,11 @@ def load_robot(
     locked = {jn: float(q_lock[full.idx_qs[jid]]) for jn, jid in zip(locked_joints, lock_ids, strict=True)}
     model = pin.buildReducedModel(full, lock_ids, q_lock) if lock_ids else full
     model.name = name or urdf.stem
+    _check_inertials(urdf, inertials, model)
 
     for frame in (*foot_frames, *([ee_frame] if ee_frame else [])):
         _frame_id(model, frame)
-    radius = _foot_radius(urdf, model, foot_frames) if foot_radius is None else float(foot_radius)
+    radius = _foot_radius(urdf_root, foot_frames) if foot_radius is None else float(foot_radius)
 
     keep = [full.getJointId(model.names[j]) for j in range(1, model.njoints)]
     poses = {}
@@ -359,26 +398,194 @@ def _joint_id(model: pin.Model, name: str) -> int:
     return model.getJointId(name)
 
 
+def _parse_xml(path: Path) -> ET.Element:
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise RobotModelError(f"{path} is not valid XML: {exc}") from exc
+
+
 def _reference_poses(model: pin.Model, srdf: str | Path | None) -> dict[str, np.ndarray]:
+    """SRDF poses in the file's order, whole-robot poses (with a ``root_joint`` entry) first.
+
+    Pinocchio stores the poses in a map sorted by name, so the order is read from the XML.
+    """
     if srdf is None:
         return {}
     pin.loadReferenceConfigurations(model, str(srdf), False)
+    loaded = {item.key(): np.array(item.data(), dtype=float) for item in model.referenceConfigurations}
+    states = _parse_xml(Path(srdf)).findall("group_state")
+    whole = [s.get("name") for s in states if any(j.get("name") == ROOT_JOINT for j in s.findall("joint"))]
+    order = list(dict.fromkeys([*whole, *(s.get("name") for s in states), *sorted(loaded)]))
     poses = {}
-    for item in model.referenceConfigurations:
-        q = np.array(item.data(), dtype=float)
-        q[3:7] /= np.linalg.norm(q[3:7])
-        poses[item.key()] = q
+    for pose_name in order:
+        if pose_name in loaded:
+            q = loaded[pose_name]
+            q[3:7] /= np.linalg.norm(q[3:7])
+            poses[pose_name] = q
     return poses
 
 
-def _foot_radius(urdf: Path, model: pin.Model, foot_frames: Sequence[str]) -> float:
+def _foot_radius(urdf_root: ET.Element, foot_frames: Sequence[str]) -> float:
     """Radius of the collision sphere of the foot links, 0 if they have none."""
-    import xml.etree.ElementTree as ET
-
-    links = {link.get("name"): link for link in ET.parse(urdf).getroot().iter("link")}
+    links = {link.get("name"): link for link in urdf_root.iter("link")}
     radii = []
     for frame in foot_frames:
         link = links.get(frame)
         sphere = link.find("collision/geometry/sphere") if link is not None else None
         radii.append(float(sphere.get("radius")) if sphere is not None else 0.0)
     return float(min(radii))
+
+
+# --- mass and inertia checks -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Inertial:
+    """A link's ``<inertial>`` as written: mass [kg] and rotational inertia [kg m^2] in the inertial frame."""
+
+    mass: float
+    inertia: np.ndarray  # (3, 3), symmetric
+
+
+def _read_inertials(urdf: Path, root: ET.Element) -> dict[str, _Inertial]:
+    """Every link's inertial, read from the XML (Pinocchio cannot tell a missing one from a zero one).
+
+    Raises:
+        RobotModelError: listing every link without an ``<inertial>``, with a malformed one, with a
+            negative mass, and a root link of zero mass.
+    """
+    links = root.findall("link")
+    children = {
+        joint.find("child").get("link") for joint in root.iter("joint") if joint.find("child") is not None
+    }
+    roots = {link.get("name") for link in links} - children
+    inertials, problems = {}, []
+    for link in links:
+        name = link.get("name")
+        element = link.find("inertial")
+        if element is None:
+            problems.append(
+                f"link {name!r} has no <inertial>: Pinocchio makes it massless, but PyBullet gives it a mass "
+                "of 1 kg and an inertia of diag(1, 1, 1) kg m^2. Add an <inertial> with the link's mass and "
+                f"inertia, or, for a massless frame link on a fixed joint, {_ZERO_INERTIAL}"
+            )
+            continue
+        try:
+            inertial = _parse_inertial(element)
+        except ValueError as exc:
+            problems.append(f"link {name!r} has a malformed <inertial> ({exc}); PyBullet refuses to load it")
+            continue
+        if inertial.mass < 0.0:
+            problems.append(f"link {name!r} has a negative mass ({inertial.mass:g} kg); give its real mass")
+        elif inertial.mass == 0.0 and name in roots:
+            problems.append(
+                f"root link {name!r} has zero mass: PyBullet would weld it to the world (a fixed base). Give "
+                'it a small mass and inertia, e.g. <mass value="0.001"/> <inertia ixx="1e-06" ixy="0" '
+                'ixz="0" iyy="1e-06" iyz="0" izz="1e-06"/>'
+            )
+        inertials[name] = inertial
+    if problems:
+        raise RobotModelError(_problem_report(urdf, problems))
+    return inertials
+
+
+def _parse_inertial(element: ET.Element) -> _Inertial:
+    """Mass and inertia of an ``<inertial>`` element; ``ValueError`` names what is missing or not a number."""
+    mass_element, inertia_element = element.find("mass"), element.find("inertia")
+    if mass_element is None or mass_element.get("value") is None:
+        raise ValueError('no <mass value="...">')
+    if inertia_element is None:
+        raise ValueError("no <inertia>")
+    missing = [key for key in _INERTIA_KEYS if inertia_element.get(key) is None]
+    if missing:
+        raise ValueError(f"<inertia> lacks {', '.join(missing)}")
+    values = {"mass": mass_element.get("value")} | {key: inertia_element.get(key) for key in _INERTIA_KEYS}
+    numbers = {}
+    for key, text in values.items():
+        try:
+            numbers[key] = float(text)
+        except ValueError:
+            raise ValueError(f"{key}={text!r} is not a number") from None
+        if not np.isfinite(numbers[key]):
+            raise ValueError(f"{key}={text!r} is not finite")
+    n = numbers
+    inertia = np.array(
+        [[n["ixx"], n["ixy"], n["ixz"]], [n["ixy"], n["iyy"], n["iyz"]], [n["ixz"], n["iyz"], n["izz"]]]
+    )
+    return _Inertial(n["mass"], inertia)
+
+
+def _inertia_defect(inertia: np.ndarray) -> str | None:
+    """Why PyBullet would reject a rotational inertia tensor (it then uses zero), or ``None`` if it is fine.
+
+    A zero tensor is fine; otherwise the principal moments must be positive and satisfy the triangle
+    inequalities (each at most the sum of the other two).
+    """
+    if not np.any(inertia):
+        return None
+    moments = np.linalg.eigvalsh(inertia)
+    text = ", ".join(f"{m:.3g}" for m in moments)
+    if moments[0] <= 0.0:
+        return f"its principal moments ({text}) kg m^2 are not all positive"
+    tolerance = 1e-9 * moments.sum()
+    if moments[2] > moments[0] + moments[1] + tolerance:
+        return (
+            f"its principal moments ({text}) kg m^2 break the triangle inequality "
+            f"{moments[0]:.3g} + {moments[1]:.3g} >= {moments[2]:.3g}"
+        )
+    return None
+
+
+def _check_inertials(urdf: Path, inertials: Mapping[str, _Inertial], model: pin.Model) -> None:
+    """Check inertia tensors and the moving rigid bodies of ``model`` (fixed and locked links merged).
+
+    Raises:
+        RobotModelError: listing every link with an inertia tensor PyBullet would zero (unless negligible)
+            and every moving rigid body without a positive mass and a positive-definite inertia.
+    """
+    body_links: dict[int, list[str]] = {}
+    for frame in model.frames:
+        if frame.type == pin.FrameType.BODY:
+            body_links.setdefault(frame.parentJoint, []).append(frame.name)
+    scale = {j: float(np.abs(np.linalg.eigvalsh(model.inertias[j].inertia)).max()) for j in body_links}
+    problems = []
+    for link, inertial in inertials.items():
+        defect = _inertia_defect(inertial.inertia)
+        if defect is None:
+            continue
+        joint = next((j for j, names in body_links.items() if link in names), None)
+        size = float(np.abs(np.linalg.eigvalsh(inertial.inertia)).max())
+        if joint is not None and size <= NEGLIGIBLE_INERTIA_RATIO * scale[joint]:
+            continue  # a placeholder on a body that is much larger: zeroing it changes nothing visible
+        problems.append(
+            f"link {link!r} has inertia {_inertia_text(inertial.inertia)}: {defect}, so PyBullet replaces it "
+            "with zero and would simulate a different link. Use the link's real inertia about its centre "
+            "of mass (e.g. a solid box of mass m and sides a, b, c has ixx = m (b^2 + c^2) / 12, "
+            "iyy = m (a^2 + c^2) / 12, izz = m (a^2 + b^2) / 12) and check the off-diagonal signs"
+        )
+    for joint, links in sorted(body_links.items()):
+        if joint == 0:
+            continue
+        inertia = model.inertias[joint]
+        moments = np.linalg.eigvalsh(inertia.inertia)
+        if inertia.mass > 0.0 and moments[0] > 1e-9 * max(moments[2], 1e-300):
+            continue
+        what = "the floating base" if joint == 1 else f"the body moved by joint {model.names[joint]!r}"
+        problems.append(
+            f"{what} (links {', '.join(links)}) has mass {inertia.mass:g} kg and principal moments "
+            f"({', '.join(f'{m:.3g}' for m in moments)}) kg m^2 about its centre of mass: a moving body "
+            "needs a positive mass and a positive-definite inertia, else its dynamics are singular. Give "
+            "its links their real masses and inertias (at least a small positive mass and inertia)"
+        )
+    if problems:
+        raise RobotModelError(_problem_report(urdf, problems))
+
+
+def _inertia_text(inertia: np.ndarray) -> str:
+    values = (inertia[0, 0], inertia[0, 1], inertia[0, 2], inertia[1, 1], inertia[1, 2], inertia[2, 2])
+    return "(" + ", ".join(f"{key}={value:g}" for key, value in zip(_INERTIA_KEYS, values, strict=True)) + ")"
+
+
+def _problem_report(urdf: Path, problems: Sequence[str]) -> str:
+    count = f"{len(problems)} problem" + ("s" if len(problems) > 1 else "")
+    lines = "\n".join(f"  - {problem}" for problem in problems)
+    return f"{urdf}: {count} with link masses or inertias (PyBullet would simulate another robot):\n{lines}"

@@ -9,6 +9,9 @@ server that it starts itself (a zmq subprocess; it runs headless, a browser is o
     viewer.animation(log["q"], log["t"])            # a replay, played by the browser
     viewer.export_html("data/output/replay.html")   # self-contained file, opens without a server
 
+A replay frames itself: the camera looks at the centre of the box swept by the base and stands back far
+enough for the whole motion (:func:`camera_for_motion`).
+
 The B1 and Z1 meshes are large (about 100 MB of Collada files, a million triangles). By default the
 viewer sends each mesh decimated by vertex clustering on a 5 mm grid (about 15 % of the triangles) with
 vertex normals, which keeps the scene and the exported HTML at a few MB. ``mesh_resolution=None`` sends
@@ -18,9 +21,11 @@ the original files.
 from __future__ import annotations
 
 import io
+import re
 import time
 import warnings
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from contextlib import redirect_stdout
 from functools import lru_cache
 from pathlib import Path
@@ -42,6 +47,8 @@ BASE_PATH_COLOR = 0x555555
 GHOST_COLOR = (0.55, 0.6, 0.7, 0.3)  # translucent grey-blue (RGBA)
 DEFAULT_MESH_RESOLUTION = 0.005  # [m] vertex-clustering cell of the decimated meshes
 GHOST_MESH_RESOLUTION = 0.012  # [m] the same for the translucent ghosts
+CAMERA_DIRECTION = (1.3, -1.6, 0.9)  # from the target towards the camera: front right, above
+CAMERA_FOV = 75.0  # [deg] meshcat's vertical field of view
 
 
 class ViewerUnavailableError(RuntimeError):
@@ -52,9 +59,9 @@ class ViewerUnavailableError(RuntimeError):
 def visual_model(robot: Robot) -> tuple[pin.Model, pin.GeometryModel]:
     """The robot's visual geometry on a kinematic model with the same locked joints as ``robot.model``.
 
-    The full model and its visual geometry are read from ``robot.urdf_path`` (mesh URIs
-    ``package://example-robot-data/...`` resolve against the example-robot-data share folder), then reduced
-    with the locked joints at their ``robot.locked_joints`` angles. Frames that ``robot.model`` has but the
+    The full model and its visual geometry are read from ``robot.urdf_path`` (mesh references resolve as
+    in :func:`resolve_mesh_path`, the rule the PyBullet plant uses too), then reduced with the locked joints
+    at their ``robot.locked_joints`` angles. Frames that ``robot.model`` has but the
     URDF does not (the end-effector tool point) are copied over. If the meshes cannot be loaded, each mesh
     is replaced by the link's primitive collision shapes and a warning is issued: the viewer still works.
 
@@ -115,6 +122,45 @@ def _package_dirs() -> tuple[str, ...]:
     return (str(robots.parent.parent), str(robots))
 
 
+def resolve_mesh_path(filename: str, urdf_path: str | Path, package_dirs: Sequence[str | Path] = ()) -> str:
+    """Absolute path of a mesh reference of a URDF, found the way the PyBullet plant finds it.
+
+    * ``package://<package>/<rest>``: the first existing file among ``<dir>/<package>/<rest>`` for each of
+      ``package_dirs`` (the viewer passes the example-robot-data folders), ``<ancestor>/<package>/<rest>``
+      for each folder above the URDF, and ``<ancestor>/<rest>`` for a folder above the URDF named
+      ``<package>``;
+    * ``file://<path>`` and plain paths: relative ones are relative to the URDF's folder (``meshes/x.stl``,
+      ``../meshes/x.dae``).
+
+    Args:
+        filename: The ``filename`` attribute of a ``<mesh>``.
+        urdf_path: The URDF file.
+        package_dirs: Folders that hold packages, searched first.
+
+    Returns:
+        The absolute path, or ``filename`` unchanged if a ``package://`` URI matches no file.
+    """
+    urdf_dir = Path(urdf_path).resolve().parent
+    match = re.match(r"package://([^/]+)/(.*)", filename)
+    if match:
+        package, rest = match.groups()
+        candidates = [Path(d) / package / rest for d in package_dirs]
+        ancestors = [urdf_dir, *urdf_dir.parents]
+        candidates += [folder / package / rest for folder in ancestors]
+        candidates += [folder / rest for folder in ancestors if folder.name == package]
+        return next((str(c.resolve()) for c in candidates if c.is_file()), filename)
+    path = Path(filename.removeprefix("file://"))
+    return str(path if path.is_absolute() else (urdf_dir / path).resolve())
+
+
+def _urdf_with_resolved_meshes(urdf: str, package_dirs: Sequence[str]) -> str:
+    """URDF text with every mesh ``filename`` made absolute by :func:`resolve_mesh_path`."""
+    root = ET.parse(urdf).getroot()
+    for mesh in root.iter("mesh"):
+        mesh.set("filename", resolve_mesh_path(mesh.get("filename", ""), urdf, package_dirs))
+    return ET.tostring(root, encoding="unicode")
+
+
 @lru_cache(maxsize=4)
 def _full_visual_model(urdf: str, package_dirs: tuple[str, ...]) -> tuple[pin.Model, pin.GeometryModel]:
     """Full model and visual geometry of a URDF (cached: loading the B1 + Z1 meshes takes seconds)."""
@@ -122,7 +168,8 @@ def _full_visual_model(urdf: str, package_dirs: tuple[str, ...]) -> tuple[pin.Mo
     try:
         loader = _mesh_loader()
         kwargs = {"package_dirs": list(package_dirs)} | ({"mesh_loader": loader} if loader else {})
-        geom = pin.buildGeomFromUrdf(full, urdf, pin.GeometryType.VISUAL, **kwargs)
+        text = _urdf_with_resolved_meshes(urdf, package_dirs)
+        geom = pin.buildGeomFromUrdfString(full, text, pin.GeometryType.VISUAL, **kwargs)
     except (ValueError, RuntimeError, OSError) as exc:
         warnings.warn(
             f"could not load the visual meshes of {urdf} ({exc}); showing primitive shapes instead",
@@ -265,6 +312,55 @@ class _RobotVisualizer(MeshcatVisualizer):
         node.set_object(mg.Mesh(_IndexedMeshGeometry(*mesh), material))
 
 
+# --- camera --------------------------------------------------------------------------------------------
+def camera_for_motion(
+    base_positions: np.ndarray,
+    robot_radius: float,
+    direction=CAMERA_DIRECTION,
+    fov: float = CAMERA_FOV,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera target and position that keep a whole motion in view.
+
+    The target is the centre of the axis-aligned box swept by the base. The motion fits in a sphere about
+    the target whose radius is half the box diagonal plus ``robot_radius``; the camera stands on
+    ``direction`` from the target at the distance where that sphere fills the vertical field of view.
+
+    Args:
+        base_positions: Base positions [m], (n, 3) (or (3,) for one pose).
+        robot_radius: Radius [m] of a sphere about the base that holds the robot.
+        direction: Direction from the target to the camera (world axes, z up); its length is ignored.
+        fov: Vertical field of view [deg] (the smaller one of a landscape window).
+
+    Returns:
+        The target and the camera position [m], each (3,).
+    """
+    points = np.asarray(base_positions, dtype=float).reshape(-1, 3)
+    lower, upper = points.min(axis=0), points.max(axis=0)
+    target = (lower + upper) / 2
+    radius = np.linalg.norm(upper - lower) / 2 + float(robot_radius)
+    distance = radius / np.sin(np.radians(fov) / 2)
+    direction = np.asarray(direction, dtype=float)
+    return target, target + distance * direction / np.linalg.norm(direction)
+
+
+def robot_radius(model: pin.Model, geometry: pin.GeometryModel, q: np.ndarray) -> float:
+    """Radius [m] of a sphere about the base that holds every visual geometry at configuration ``q``.
+
+    Each geometry counts as the sphere about its local bounding box (meshes are scaled on loading).
+    """
+    data, geometry_data = model.createData(), geometry.createData()
+    pin.forwardKinematics(model, data, q)
+    pin.updateGeometryPlacements(model, data, geometry, geometry_data)
+    base = np.asarray(q[:3], dtype=float)
+    radius = 0.0
+    for obj, placement in zip(geometry.geometryObjects, geometry_data.oMg, strict=True):
+        shape = obj.geometry
+        shape.computeLocalAABB()
+        centre = placement.act(np.asarray(shape.aabb_center, dtype=float))
+        radius = max(radius, float(np.linalg.norm(centre - base) + shape.aabb_radius))
+    return radius
+
+
 # --- the viewer ------------------------------------------------------------------------------------------
 class Viewer:
     """A meshcat scene of the robot, its contact forces and MPC plans.
@@ -296,7 +392,10 @@ class Viewer:
         self.viz = self._load_robot("robot")
         self._ghosts: dict[int, _RobotVisualizer] = {}
         self._arrows: set[str] = set()
-        self.set_camera()
+        self._robot_radius = robot_radius(self.model, self.geometry, robot.q_nominal)
+        self.camera_target = np.zeros(3)
+        self.camera_position = np.zeros(3)
+        self.frame_motion(robot.q_nominal[None, :3])
         self.display(robot.q_nominal)
 
     def _load_robot(self, root: str, color=None, resolution: float | None = None) -> _RobotVisualizer:
@@ -315,11 +414,33 @@ class Viewer:
         """An IFrame of the live scene for a notebook cell (make it the cell's last expression)."""
         return self.meshcat.jupyter_cell(height=height)
 
-    def set_camera(self, position=(1.3, -1.6, 0.9)) -> None:
-        """Place the camera at ``position`` [m] (world axes, z up), looking at the world origin."""
-        x, y, z = (float(c) for c in position)
+    def set_camera(self, position=CAMERA_DIRECTION, target=(0.0, 0.0, 0.0)) -> None:
+        """Place the camera at ``position`` [m] looking at ``target`` [m] (world axes, z up).
+
+        Meshcat's camera always looks at (and orbits about) the origin of its scene: translating
+        ``/Cameras/default``, as meshcat's readme suggests, moves the camera but it still looks at the
+        origin. So the drawn world (the robot and overlays under ``/meshcat``, the grid and the axes) is
+        shifted by ``-target`` instead; the picture is that of the world seen from ``position``. Both points
+        are kept in :attr:`camera_position` and :attr:`camera_target`, and in an exported HTML file.
+        """
+        target = np.asarray(target, dtype=float)
+        position = np.asarray(position, dtype=float)
+        shift = pin.SE3(np.eye(3), -target).homogeneous
+        for node in ("/meshcat", "/Grid", "/Axes"):
+            self.meshcat[node].set_transform(shift)
         # The camera object lives in meshcat's y-up frame: world (x, y, z) is (x, z, -y) there.
+        x, y, z = (float(c) for c in position - target)
         self.meshcat["/Cameras/default/rotated/<object>"].set_property("position", [x, z, -y])
+        self.camera_target, self.camera_position = target.copy(), position.copy()
+
+    def frame_motion(self, base_positions: np.ndarray) -> None:
+        """Point the camera so that the robot stays in view while its base visits ``base_positions``.
+
+        Args:
+            base_positions: Base positions [m], (n, 3); see :func:`camera_for_motion`.
+        """
+        target, position = camera_for_motion(base_positions, self._robot_radius)
+        self.set_camera(position, target)
 
     def display(self, q: np.ndarray) -> None:
         """Place the robot at configuration ``q`` (nq,)."""
@@ -477,10 +598,13 @@ class Viewer:
         repetitions: int = 1,
         foot_scale: float = 1e-3,
         arm_scale: float = 2e-3,
+        frame_camera: bool = True,
     ) -> Animation:
         """Send a replay to the scene (the browser plays it; :meth:`export_html` keeps it).
 
         Configurations are interpolated on the Lie group at ``fps`` frames per second of simulated time.
+        The robot is shown at the first configuration and, with ``frame_camera``, the camera is set from the
+        bounds of the base trajectory (:meth:`frame_motion`) so the whole motion is in view.
 
         Args:
             qs: Configurations (n, nq).
@@ -492,6 +616,7 @@ class Viewer:
             play: Start playing at once.
             repetitions: Number of times the replay plays.
             foot_scale, arm_scale: Arrow lengths per newton [m/N].
+            frame_camera: Set the camera from the motion's bounds.
 
         Returns:
             The meshcat animation (already sent).
@@ -502,6 +627,9 @@ class Viewer:
             raise ValueError(f"qs (n, nq) and times (n,) must match, got {qs.shape} and {times.shape}")
         if len(times) > 1 and np.any(np.diff(times) <= 0):
             raise ValueError("times must be strictly increasing")
+        if frame_camera:
+            self.frame_motion(qs[:, :3])
+        self.display(qs[0])  # the scene as the replay opens
         frame_times = times[0] + np.arange(int(np.floor((times[-1] - times[0]) * fps + 1e-9)) + 1) / fps
         anim = Animation(default_framerate=fps)
         geometry_data = self.viz.visual_data
