@@ -4,7 +4,7 @@
 # cd's to the repo root, creates .venv there if missing, installs environment.txt and the wbmpc
 # package (editable, --no-deps) when environment.txt or pyproject.toml changed since the last
 # install (sha256 stamp in .venv/.wbmpc-stamp), fetches the native BLASFEO for Fatrop once
-# (.venv/lib/wbmpc-blasfeo/, see wbmpc/blasfeo.py), then activates .venv.
+# (.venv/lib/wbmpc-blasfeo/, see wbmpc/solver/blasfeo.py), then activates .venv.
 # Works from any cwd. Set WBMPC_PYTHON to choose the interpreter that creates the venv.
 
 _wbmpc_env_setup() {
@@ -33,14 +33,14 @@ _wbmpc_env_setup() {
         echo "[env.sh] done" >&2
     fi
 
-    # Native (AVX2/FMA) BLASFEO for Fatrop, see wbmpc/blasfeo.py: fetched once, skipped while the file is
+    # Native (AVX2/FMA) BLASFEO for Fatrop, see wbmpc/solver/blasfeo.py: fetched once, skipped while the file is
     # present with the checksum recorded there. A failure (e.g. offline) only leaves casadi's generic one.
     if [ "$(uname -s)-$(uname -m)" = "Linux-x86_64" ]; then
         local native want err
         native="${WBMPC_BLASFEO_PATH:-$venv/lib/wbmpc-blasfeo/libblasfeo.so.0}"
-        want="$(sed -n 's/^NATIVE_SHA256 = "\([0-9a-f]*\)".*/\1/p' wbmpc/blasfeo.py)"
+        want="$(sed -n 's/^NATIVE_SHA256 = "\([0-9a-f]*\)".*/\1/p' wbmpc/solver/blasfeo.py)"
         if [ ! -f "$native" ] || [ "$(sha256sum "$native" | cut -d' ' -f1)" != "$want" ]; then
-            if err="$("$venv/bin/python" -m wbmpc.blasfeo fetch --quiet 2>&1)"; then
+            if err="$("$venv/bin/python" -m wbmpc.solver.blasfeo fetch --quiet 2>&1)"; then
                 echo "[env.sh] fetched the native BLASFEO for Fatrop: $native" >&2
             else
                 echo "[env.sh] native BLASFEO not fetched (${err##*$'\n'}); Fatrop uses casadi's generic one" >&2

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from wbmpc.closed_loop import ClosedLoopConfig
-from wbmpc.gait import make_gait
-from wbmpc.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
-from wbmpc.robot import load_b1_z1
+from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.closed_loop import ClosedLoopConfig
 
 MPC_CONFIGS = [
     ({"dt_min": 0.0}, "dt_min must be a positive number"),
@@ -129,7 +129,7 @@ def test_an_upward_arm_force_above_the_weight_is_refused(mpc):
 
 
 def test_arm_commands_on_a_robot_without_arm_are_refused():
-    from wbmpc.robot import load_b1
+    from wbmpc.model.robot import load_b1
 
     b1 = load_b1()
     mpc = WholeBodyMPC(b1, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))

@@ -2,7 +2,7 @@
 
 import json
 
-from wbmpc import bench
+from wbmpc.studies import bench
 
 REQUIRED = {
     "formulation",
@@ -37,7 +37,7 @@ def test_quick_benchmark_writes_records(tmp_path):
 
 def test_committed_table1_has_the_issue_columns_and_matches_its_markdown(tmp_path):
     from wbmpc import table1
-    from wbmpc.formulations import FORMULATIONS
+    from wbmpc.ocp.formulations import FORMULATIONS
 
     rows = table1.load_table()
     required = {

@@ -13,7 +13,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from wbmpc import blasfeo
+from wbmpc.solver import blasfeo
 
 NATIVE_OK = blasfeo.native_supported()[0] and not blasfeo.check_native_file()
 NATIVE_SKIP = "native BLASFEO unusable here: " + (
@@ -26,11 +26,11 @@ SOLVES = textwrap.dedent(
     """
     import json, sys
     import numpy as np
-    from wbmpc import blasfeo
-    from wbmpc.gait import make_gait
-    from wbmpc.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.solver import blasfeo
+    from wbmpc.ocp.gait import make_gait
+    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
-    from wbmpc.robot import load_b1_z1
+    from wbmpc.model.robot import load_b1_z1
 
     robot = load_b1_z1()
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("trot")))
@@ -54,7 +54,7 @@ TINY = textwrap.dedent(
     """
     import json
     import casadi as ca
-    from wbmpc import blasfeo
+    from wbmpc.solver import blasfeo
     x = ca.MX.sym("x", 2)
     options = {"print_time": False, "fatrop": {"print_level": 0}}
     ca.nlpsol("s", "fatrop", {"x": x, "f": ca.sumsqr(x - 1)}, options)
@@ -117,7 +117,11 @@ def test_a_missing_native_file_falls_back_to_generic_with_one_line(tmp_path):
     info = report(proc)["info"]
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert len(lines) == 1, lines
-    assert "generic" in lines[0] and str(missing) in lines[0] and "python -m wbmpc.blasfeo fetch" in lines[0]
+    assert (
+        "generic" in lines[0]
+        and str(missing) in lines[0]
+        and "python -m wbmpc.solver.blasfeo fetch" in lines[0]
+    )
     assert info["choice"] == "generic" and info["mapped_count"] == 1
     assert os.path.samefile(info["library"], blasfeo.generic_path())
 
@@ -136,7 +140,7 @@ def test_a_corrupt_native_file_is_refused(tmp_path):
 
 @needs_native
 def test_bench_compares_both_libraries_in_one_interleaved_run(tmp_path):
-    from wbmpc import bench
+    from wbmpc.studies import bench
 
     output = tmp_path / "blasfeo.json"
     argv = ["--quick", "--steps", "4", "--warmup", "1", "--batch", "2", "--blasfeo", "both"]

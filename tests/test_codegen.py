@@ -11,11 +11,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc import codegen
-from wbmpc.gait import make_gait
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
-from wbmpc.ocp import OCP, OCPSettings
-from wbmpc.robot import (
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import (
     B1_Z1_EE_FRAME,
     B1_Z1_LOCKED_JOINTS,
     UNITREE_FOOT_FRAMES,
@@ -24,6 +21,9 @@ from wbmpc.robot import (
     load_b1_z1,
     load_robot,
 )
+from wbmpc.ocp import OCP, OCPSettings
+from wbmpc.ocp.gait import make_gait
+from wbmpc.solver import codegen
 
 FLAGS = ("-O0",)  # quick to compile in CI; the benchmark uses the default -O1
 SMALL = OCPSettings(n_nodes=3, n_tau_nodes=1)
@@ -298,9 +298,9 @@ def test_compiled_solver_matches_in_process_after_a_model_change(loader, edit, s
 # --- temporary folders of killed builds -------------------------------------------------------------------
 _BUILD_SCRIPT = """
 import sys
-from wbmpc import codegen
+from wbmpc.solver import codegen
 from wbmpc.ocp import OCP, OCPSettings
-from wbmpc.robot import load_b1
+from wbmpc.model.robot import load_b1
 ocp = OCP(load_b1(), OCPSettings(n_nodes=3, n_tau_nodes=1))
 codegen.build(ocp, ("-O0",), directory=sys.argv[1], progress=False)
 """

@@ -4,13 +4,13 @@ no failed plan reaches the low level (the static hold)."""
 import numpy as np
 import pytest
 
-from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
-from wbmpc.gait import GaitSchedule, make_gait, parse_gait_schedule, to_ticks
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1_z1
+from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCPSettings
+from wbmpc.ocp.gait import GaitSchedule, make_gait, parse_gait_schedule, to_ticks
 from wbmpc.quick import pick
-from wbmpc.robot import load_b1_z1
-from wbmpc.statics import static_equilibrium
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
 PLANT_DT, MPC_DT = 0.0005, 0.0125
 MIN_SWING_HEIGHT = -0.005  # [m] the deepest a swing foot may go below the ground
@@ -57,7 +57,7 @@ def test_mpc_node0_contacts_equal_the_plants_on_every_tick(robot):
     contacts at every MPC tick of a 10 s trot and of a stand-trot-stand schedule."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("trot")))
     q, v = robot.q_nominal, np.zeros(robot.nv)
-    from wbmpc.mpc import Commands
+    from wbmpc.control.mpc import Commands
 
     for gait in (make_gait("trot"), parse_gait_schedule("stand:2,trot:6,stand:2")):
         mpc.config.gait = gait

@@ -6,7 +6,7 @@ import pinocchio as pin
 import pytest
 
 from wbmpc import cpin
-from wbmpc.robot import load_b1, load_b1_z1
+from wbmpc.model.robot import load_b1, load_b1_z1
 
 TOL = 1e-9
 N_STATES = 25

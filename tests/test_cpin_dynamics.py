@@ -20,8 +20,8 @@ from wbmpc.cpin.centroidal import (
     static_torque_estimate,
 )
 from wbmpc.cpin.crba import crba
-from wbmpc.robot import load_b1, load_b1_z1
-from wbmpc.statics import static_equilibrium
+from wbmpc.model.robot import load_b1, load_b1_z1
+from wbmpc.model.statics import static_equilibrium
 
 RTOL = 1e-9  # relative to the largest magnitude of the expected value
 N_STATES = 20

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from wbmpc import demo
+from wbmpc.studies import demo
 
 
 @pytest.mark.parametrize(

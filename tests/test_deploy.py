@@ -5,11 +5,11 @@ import subprocess
 
 import numpy as np
 
-from wbmpc import deploy
-from wbmpc.gait import make_gait
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1
 from wbmpc.ocp import OCPSettings
-from wbmpc.robot import load_b1
+from wbmpc.ocp.gait import make_gait
+from wbmpc.solver import deploy
 
 
 def test_c_program_matches_python(shared_cache, tmp_path, monkeypatch):

@@ -1,15 +1,14 @@
 """Solver status names, physical prechecks and the once-per-reason failure reporter."""
 
-
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc import diagnostics as diag
-from wbmpc.gait import make_gait
-from wbmpc.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control import diagnostics as diag
+from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1, load_b1_z1
 from wbmpc.ocp import OCPSettings
-from wbmpc.robot import load_b1, load_b1_z1
+from wbmpc.ocp.gait import make_gait
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
 from wbmpc.estimation import (
     EstimatorNoise,
     ImuNoise,
@@ -14,11 +14,11 @@ from wbmpc.estimation import (
     contact_trust,
     synthesize_imu,
 )
-from wbmpc.gait import make_gait
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
+from wbmpc.ocp.gait import make_gait
 from wbmpc.quick import pick
-from wbmpc.robot import load_b1_z1
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
 DT = 0.002  # the low-level (logging) rate, 500 Hz
 # A MEMS-grade IMU after its start-up calibration, and 12-bit-ish encoders.

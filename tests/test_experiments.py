@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from wbmpc import experiments
-from wbmpc.logs import json_default
-from wbmpc.robot import load_b1_z1
+from wbmpc.io.logs import json_default
+from wbmpc.model.robot import load_b1_z1
+from wbmpc.studies import experiments
 
 
 @pytest.fixture(scope="module")

@@ -6,13 +6,13 @@ import pinocchio as pin
 import pytest
 
 from wbmpc import codegen, cpin
-from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
-from wbmpc.formulations import FORMULATIONS, make_formulation
-from wbmpc.gait import make_gait
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1_z1
+from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
-from wbmpc.robot import load_b1_z1
-from wbmpc.statics import static_equilibrium
+from wbmpc.ocp.formulations import FORMULATIONS, make_formulation
+from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
 NAMES = list(FORMULATIONS)
 # Paper, Table I: decision variables with 15 nodes (14 with inputs) and joint torques on 3 nodes.

@@ -1,10 +1,10 @@
-"""Tests for wbmpc.gait."""
+"""Tests for wbmpc.ocp.gait."""
 
 import casadi as ca
 import numpy as np
 import pytest
 
-from wbmpc.gait import (
+from wbmpc.ocp.gait import (
     FOOT_NAMES,
     Gait,
     SwingParams,

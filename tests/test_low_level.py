@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from wbmpc.low_level import LowLevelController
+from wbmpc.control.low_level import LowLevelController
 
 
 def plan(nj=2):

@@ -4,11 +4,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop, tilt
-from wbmpc.gait import make_gait
-from wbmpc.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCP, OCPSettings
-from wbmpc.robot import load_b1_z1
+from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop, tilt
 
 TOL = 1e-3  # the solver tolerance (paper)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.plant import ContactPlant, PlantState, fallen
+from wbmpc.sim.plant import ContactPlant, PlantState, fallen
 
 FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 LOCKED_JOINTS = ("joint5", "joint6", "jointGripper")

@@ -9,7 +9,8 @@ import pytest
 from conftest import fake_plan
 from matplotlib.figure import Figure
 
-from wbmpc.plots import (
+from wbmpc.model.robot import load_b1_z1
+from wbmpc.viz.plots import (
     base_rpy,
     figure_dir,
     heading_velocity,
@@ -19,7 +20,6 @@ from wbmpc.plots import (
     repo_root,
     save_figure,
 )
-from wbmpc.robot import load_b1_z1
 
 
 @pytest.fixture(scope="module")

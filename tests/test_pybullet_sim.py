@@ -7,9 +7,9 @@ import pinocchio as pin
 import pybullet as p
 import pytest
 
-from wbmpc import robot as robots
-from wbmpc.pybullet_sim import Box, Payload, PyBulletPlant, Wall
-from wbmpc.statics import static_equilibrium
+from wbmpc.model import robot as robots
+from wbmpc.model.statics import static_equilibrium
+from wbmpc.sim.pybullet_plant import Box, Payload, PyBulletPlant, Wall
 
 G = 9.81
 

@@ -4,7 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.robot import RobotModelError, example_robot_data_dir, load, load_b1, load_b1_z1, load_robot
+from wbmpc.model.robot import RobotModelError, example_robot_data_dir, load, load_b1, load_b1_z1, load_robot
 
 URDF = example_robot_data_dir() / "b1_description/urdf/b1-z1.urdf"
 SRDF = example_robot_data_dir() / "b1_description/srdf/b1-z1.srdf"
@@ -131,7 +131,7 @@ def test_default_robots_inertials(urdf_name):
     under 1e-5 of the trunk's inertia that the check accepts as negligible."""
     import xml.etree.ElementTree as ET
 
-    from wbmpc.robot import _inertia_defect, _read_inertials
+    from wbmpc.model.robot import _inertia_defect, _read_inertials
 
     urdf = URDF.parent / urdf_name
     inertials = _read_inertials(urdf, ET.parse(urdf).getroot())

@@ -11,8 +11,8 @@ pytest.importorskip("rosbags")
 from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.rosbag2 import Writer  # noqa: E402
 
-from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop  # noqa: E402
-from wbmpc.gait import make_gait  # noqa: E402
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC  # noqa: E402
+from wbmpc.io.logs import RunLog, load_log, save_log  # noqa: E402
 from wbmpc.io.rosbag import (  # noqa: E402
     JointNameError,
     MissingTopicError,
@@ -23,10 +23,10 @@ from wbmpc.io.rosbag import (  # noqa: E402
     read_bag,
     write_bag,
 )
-from wbmpc.logs import RunLog, load_log, save_log  # noqa: E402
-from wbmpc.mpc import MPCConfig, WholeBodyMPC  # noqa: E402
+from wbmpc.model.robot import load_b1_z1  # noqa: E402
 from wbmpc.ocp import OCPSettings  # noqa: E402
-from wbmpc.robot import load_b1_z1  # noqa: E402
+from wbmpc.ocp.gait import make_gait  # noqa: E402
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop  # noqa: E402
 
 
 @pytest.fixture(scope="module")

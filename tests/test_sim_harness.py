@@ -4,14 +4,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
-from wbmpc.disturbances import Kick, Push
-from wbmpc.gait import make_gait
-from wbmpc.logs import RunLog, load_log, save_log
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.io.logs import RunLog, load_log, save_log
+from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
-from wbmpc.robot import load_b1_z1
-from wbmpc.sensing import LowPassFilter, SensorNoise, StateSensor
+from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.sim.disturbances import Kick, Push
+from wbmpc.sim.sensing import LowPassFilter, SensorNoise, StateSensor
 
 
 @pytest.fixture(scope="module")

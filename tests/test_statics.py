@@ -1,12 +1,12 @@
-"""Static equilibrium (wbmpc.statics) against the symbolic RNEA, virtual work and plain force balance."""
+"""Static equilibrium (wbmpc.model.statics) against the symbolic RNEA, virtual work and force balance."""
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from wbmpc import cpin
-from wbmpc.robot import load_b1, load_b1_z1
-from wbmpc.statics import StaticEquilibrium, check_friction, static_equilibrium
+from wbmpc.model.robot import load_b1, load_b1_z1
+from wbmpc.model.statics import StaticEquilibrium, check_friction, static_equilibrium
 
 ALL_FEET = [True, True, True, True]
 TROT = [True, False, False, True]  # FL + RR

@@ -1,10 +1,10 @@
-"""Tests for wbmpc.time_grid."""
+"""Tests for wbmpc.ocp.time_grid."""
 
 import casadi as ca
 import numpy as np
 import pytest
 
-from wbmpc.time_grid import (
+from wbmpc.ocp.time_grid import (
     geometric_time_steps,
     horizon_for,
     node_times,

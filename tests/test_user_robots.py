@@ -13,7 +13,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.robot import RobotModelError, load_robot
+from wbmpc.model.robot import RobotModelError, load_robot
 
 DATA = Path(__file__).parent / "data" / "quadruped_arm"
 URDF = DATA / "urdf" / "quadruped_arm.urdf"
@@ -233,7 +233,7 @@ def test_pybullet_welds_a_massless_root_to_the_world(tmp_path):
 def test_plant_loads_the_masses_of_the_model(tmp_path):
     """The URDF the plant gives PyBullet has, link by link, the mass of the checked model."""
     p = pytest.importorskip("pybullet")
-    from wbmpc.pybullet_sim import preprocess_urdf
+    from wbmpc.sim.pybullet_plant import preprocess_urdf
 
     robot = _load(locked_joints=("arm_joint2",))
     urdf = tmp_path / "plant.urdf"

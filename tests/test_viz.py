@@ -13,8 +13,7 @@ import pinocchio as pin
 import pytest
 from conftest import fake_plan
 
-from wbmpc import viz
-from wbmpc.robot import load_b1_z1, load_robot
+from wbmpc.model.robot import load_b1_z1, load_robot
 from wbmpc.viz import (
     Viewer,
     ViewerUnavailableError,
@@ -24,6 +23,7 @@ from wbmpc.viz import (
     vertex_normals,
     visual_model,
 )
+from wbmpc.viz import viewer as viz
 
 DATA = Path(__file__).parent / "data" / "quadruped_arm"
 

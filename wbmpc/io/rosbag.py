@@ -1,7 +1,7 @@
 """ROS 2 bags of closed-loop runs without a ROS install, with the pure-Python ``rosbags`` library.
 
-:func:`write_bag` records a columnar :class:`~wbmpc.logs.RunLog` (``result.run_log()`` or
-:func:`~wbmpc.logs.load_log`) as a rosbag2 folder (sqlite3 storage by default, MCAP optional) that ROS 2
+:func:`write_bag` records a columnar :class:`~wbmpc.io.logs.RunLog` (``result.run_log()`` or
+:func:`~wbmpc.io.logs.load_log`) as a rosbag2 folder (sqlite3 storage by default, MCAP optional) that ROS 2
 tools (``ros2 bag play``, Foxglove, PlotJuggler) open. :func:`read_bag` imports a rosbag2 folder (sqlite3
 or MCAP), this module's or a lab's, back into a ``RunLog`` through a :class:`TopicMap` (topic names, joint
 order, frame ids; editable as JSON). Command line::
@@ -112,7 +112,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.logs import RunLog, json_default, load_log, save_log
+from wbmpc.io.logs import RunLog, json_default, load_log, save_log
 
 __all__ = [
     "BAG_FORMAT_VERSION",
@@ -419,11 +419,11 @@ def write_bag(
     """Record a run's log as a ROS 2 bag (see the module docstring for topics and fields).
 
     Args:
-        log: The run's columnar log (``result.run_log()`` or :func:`~wbmpc.logs.load_log`).
+        log: The run's columnar log (``result.run_log()`` or :func:`~wbmpc.io.logs.load_log`).
         path: Bag folder to create (must not exist).
-        robot: The :class:`~wbmpc.robot.Robot` (joint names, gravity); ``None``: the topic map's
+        robot: The :class:`~wbmpc.model.robot.Robot` (joint names, gravity); ``None``: the topic map's
             ``joint_names``, else the names recorded in ``log.meta["joint_names"]``, else the first robot of
-            :data:`wbmpc.robot.ROBOTS` whose joint count fits the log.
+            :data:`wbmpc.model.robot.ROBOTS` whose joint count fits the log.
         storage: ``"sqlite3"`` or ``"mcap"``.
         topic_map: A :class:`TopicMap`, a dict of its fields, or a JSON path/string; ``None``: the defaults.
         start_time_ns: Stamp [ns] of ``t = 0`` (0: simulated time; e.g. ``time.time_ns()`` for wall time).
@@ -608,7 +608,7 @@ def _joint_names_for_write(log: RunLog, robot, tm: TopicMap, nj: int) -> list[st
 
 
 def _guess_robot_joint_names(nj: int) -> list[str]:
-    from wbmpc.robot import ROBOTS
+    from wbmpc.model.robot import ROBOTS
 
     for loader in ROBOTS.values():
         robot = loader()
@@ -826,12 +826,12 @@ def read_bag(
     topic_map: TopicMap | dict | str | Path | None = None,
     robot=None,
 ) -> RunLog:
-    """Import a ROS 2 bag (sqlite3 or MCAP storage) into a columnar :class:`~wbmpc.logs.RunLog`.
+    """Import a ROS 2 bag (sqlite3 or MCAP storage) into a columnar :class:`~wbmpc.io.logs.RunLog`.
 
     Args:
         path: Bag folder (with ``metadata.yaml``) or a single ``.db3``/``.mcap`` file.
         topic_map: A :class:`TopicMap`, a dict of its fields or a JSON path/string; ``None``: the defaults.
-        robot: Optional :class:`~wbmpc.robot.Robot`: the model's joint order if the topic map has none.
+        robot: Optional :class:`~wbmpc.model.robot.Robot`: the model's joint order if the topic map has none.
 
     Returns:
         The log: ``signals`` at the joint-state stamps, ``solves`` one row per diagnostics message; ``meta``
@@ -1165,19 +1165,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     export.add_argument("bag", type=Path)
     export.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3")
     export.add_argument("--topic-map", type=Path, help="TopicMap JSON file")
-    export.add_argument("--robot", help="robot name of wbmpc.robot.ROBOTS giving the joint names")
+    export.add_argument("--robot", help="robot name of wbmpc.model.robot.ROBOTS giving the joint names")
     imp = sub.add_parser("import", help="read a ROS 2 bag into a run log (.npz)")
     imp.add_argument("bag", type=Path)
     imp.add_argument("log", type=Path)
     imp.add_argument("--topic-map", type=Path, help="TopicMap JSON file")
-    imp.add_argument("--robot", help="robot name of wbmpc.robot.ROBOTS giving the joint order")
+    imp.add_argument("--robot", help="robot name of wbmpc.model.robot.ROBOTS giving the joint order")
     tmap = sub.add_parser("topic-map", help="write (or print) the default topic map as JSON")
     tmap.add_argument("path", type=Path, nargs="?")
     args = parser.parse_args(argv)
 
     robot = None
     if getattr(args, "robot", None):
-        from wbmpc.robot import load
+        from wbmpc.model.robot import load
 
         robot = load(args.robot)
     topic_map = TopicMap.from_json(args.topic_map) if getattr(args, "topic_map", None) else None

@@ -31,7 +31,8 @@ crashing case is retried on up to three workers before it is recorded; the worke
 ``OMP_NUM_THREADS=1`` etc. The client keeps no more cases in flight than the cluster has worker threads:
 the scheduler fails every task assigned to a worker that dies, so no case waits on a worker behind another.
 
-The compiled solver: :func:`wbmpc.codegen.build` serialises builds of one key with a file lock in the cache
+The compiled solver: :func:`wbmpc.solver.codegen.build` serialises builds of one key with a file lock in
+the cache
 folder, so workers sharing that folder never build the same library twice; ``warmup`` (e.g.
 :func:`warm_closed_loop_cache`) runs once on one worker before the cases are submitted, so the library is
 built once while no case waits on the lock with a worker tied up.
@@ -574,9 +575,9 @@ def build_case(case: dict) -> dict:
 
     Results: ``rebuilt`` (this call compiled the library), ``key``, ``build_s``.
     """
-    from wbmpc import codegen
+    from wbmpc.model.robot import load_b1
     from wbmpc.ocp import OCP, OCPSettings
-    from wbmpc.robot import load_b1
+    from wbmpc.solver import codegen
 
     ocp = OCP(load_b1(), OCPSettings(n_nodes=case.get("nodes", 3), n_tau_nodes=1))
     built = codegen.build(ocp, ("-O0",), directory=case["cache_dir"], progress=False)
@@ -593,9 +594,9 @@ _MPCS: dict = {}  # per worker process: building the problem and loading the sol
 
 
 def _closed_loop_mpc(nodes: int, compiled: bool):
-    from wbmpc.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.model.robot import load_b1_z1
     from wbmpc.ocp import OCPSettings
-    from wbmpc.robot import load_b1_z1
 
     key = (nodes, compiled)
     if key not in _MPCS:
@@ -612,8 +613,8 @@ def closed_loop_case(case: dict) -> dict:
     """
     from dataclasses import replace
 
-    from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
-    from wbmpc.gait import make_gait
+    from wbmpc.ocp.gait import make_gait
+    from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
     mpc = _closed_loop_mpc(case.get("nodes", 15), case.get("compiled", True))
     mpc.config = replace(mpc.config, gait=make_gait(case.get("gait", "trot"), 0.8))
@@ -639,7 +640,7 @@ def closed_loop_case(case: dict) -> dict:
 
 def warm_closed_loop_cache(cases: list[dict]) -> None:
     """Warm-up of :func:`closed_loop_case`: build the compiled library of each horizon once."""
-    from wbmpc import codegen
+    from wbmpc.solver import codegen
 
     for nodes in sorted({c.get("nodes", 15) for c in cases if c.get("compiled", True)}):
         mpc = _closed_loop_mpc(nodes, True)

@@ -1,10 +1,10 @@
-"""PyBullet plant: the same robot and interface as :class:`wbmpc.plant.ContactPlant`, with physical contacts.
+"""PyBullet plant: the robot and interface of :class:`wbmpc.sim.plant.ContactPlant`, with physical contacts.
 
 :class:`PyBulletPlant` loads the MPC's own URDF (``robot.urdf_path``) into a private PyBullet client
 (DIRECT mode, so several plants can coexist) on a flat ground plane, drives every actuated joint in torque
 mode and converts the state to and from Pinocchio's conventions. Contacts are no longer scheduled: they come
 from PyBullet's collision detection and its unilateral, friction-limited contact solver, so the closed loop
-can swap :class:`~wbmpc.plant.ContactPlant` for this plant to test the MPC against a physics engine.
+can swap :class:`~wbmpc.sim.plant.ContactPlant` for this plant to test the MPC against a physics engine.
 
 What the plant does to the URDF (a temporary, preprocessed copy is loaded; the original is untouched):
 
@@ -57,9 +57,9 @@ import numpy as np
 import pinocchio as pin
 import pybullet as p
 
-from wbmpc.plant import Plant, PlantState
-from wbmpc.plant import fallen as _fallen
-from wbmpc.robot import Robot, RobotModelError, example_robot_data_dir
+from wbmpc.model.robot import Robot, RobotModelError, example_robot_data_dir
+from wbmpc.sim.plant import Plant, PlantState
+from wbmpc.sim.plant import fallen as _fallen
 
 __all__ = ["Box", "Payload", "PyBulletPlant", "Wall"]
 
@@ -149,7 +149,7 @@ SceneObject = Box | Wall | Payload
 
 # ---------------------------------------------------------------------------------------------- plant
 class PyBulletPlant(Plant):
-    """The robot in PyBullet, with the :class:`~wbmpc.plant.ContactPlant` interface.
+    """The robot in PyBullet, with the :class:`~wbmpc.sim.plant.ContactPlant` interface.
 
     Args:
         robot: The robot (its URDF, locked joints, joint order, foot and end-effector frames are used).
@@ -365,7 +365,7 @@ class PyBulletPlant(Plant):
 
     @property
     def last_contact_forces(self) -> np.ndarray:
-        """Same as :meth:`contact_forces` (the name used by :class:`~wbmpc.plant.ContactPlant`)."""
+        """Same as :meth:`contact_forces` (the name used by :class:`~wbmpc.sim.plant.ContactPlant`)."""
         return self._forces.copy()
 
     @property
@@ -373,7 +373,7 @@ class PyBulletPlant(Plant):
         """Per-foot flags of the last step, each shape (n_feet,) bool.
 
         * ``pulling``: always False (PyBullet contacts are unilateral); kept for key-by-key comparisons with
-          :class:`~wbmpc.plant.ContactPlant`.
+          :class:`~wbmpc.sim.plant.ContactPlant`.
         * ``slipping``: a foot whose friction force reached the friction limit (the contact slides).
         * ``penetrating``: a foot deeper than 2 mm into the ground.
         """
@@ -608,7 +608,7 @@ class PyBulletPlant(Plant):
     @property
     def foot_positions(self) -> np.ndarray:
         """World positions of the foot frames read from PyBullet [m], shape (n_feet, 3) (a property, as in
-        :class:`~wbmpc.plant.ContactPlant`)."""
+        :class:`~wbmpc.sim.plant.ContactPlant`)."""
         return np.array(
             [
                 (self._link_placement(link) * offset).translation
@@ -634,7 +634,7 @@ class PyBulletPlant(Plant):
         return pin.SE3(_quat_matrix(np.array(s[5])), np.array(s[4]))
 
     def fallen(self, state: PlantState | None = None, **kwargs) -> bool:
-        """:func:`wbmpc.plant.fallen` on ``state`` (default: the current state); kwargs are passed on."""
+        """:func:`wbmpc.sim.plant.fallen` on ``state`` (default: the current state); kwargs are passed on."""
         return _fallen(self.state if state is None else state, **kwargs)
 
     # ------------------------------------------------------------------ disturbances

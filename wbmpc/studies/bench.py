@@ -5,11 +5,12 @@ rigid-contact Pinocchio plant), with the first ``warmup`` solves discarded. Timi
 tests: this command measures and writes ``data/bench/solve_times.json`` (a list of records) and a figure
 ``data/output/bench/solve_times.png``.
 
-    python -m wbmpc.bench            # full run (about 15 minutes on 2 cores)
-    python -m wbmpc.bench --quick    # about a minute (also with WBMPC_QUICK=1)
-    python -m wbmpc.bench --blasfeo both --case fatrop,compiled,15 --steps 50 --output /tmp/b.json
+    python -m wbmpc.studies.bench            # full run (about 15 minutes on 2 cores)
+    python -m wbmpc.studies.bench --quick    # about a minute (also with WBMPC_QUICK=1)
+    python -m wbmpc.studies.bench --blasfeo both --case fatrop,compiled,15 --steps 50 --output /tmp/b.json
 
-Every record carries ``blasfeo`` (:func:`wbmpc.blasfeo.info`: which BLASFEO Fatrop ran on, its target, the CPU
+Every record carries ``blasfeo`` (:func:`wbmpc.solver.blasfeo.info`: which BLASFEO Fatrop ran on, its
+target, the CPU
 model and flags). ``--blasfeo native|generic`` runs the cases on that library; ``both`` compares them: a
 process holds one BLASFEO only, so each variant runs in its own worker subprocess (``WBMPC_BLASFEO`` set),
 and the two workers take turns in batches of ``--batch`` solves (order A B B A ...), each paused while the
@@ -33,7 +34,7 @@ import numpy as np
 
 from wbmpc.quick import quick_mode
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def run_case(
@@ -60,11 +61,11 @@ def run_case(
         ee_force_input: The paper's layout (arm force as a pinned input, see :class:`wbmpc.ocp.OCPSettings`).
         compile_flags: gcc flags of the compiled library (default: the MPC's).
     """
-    from wbmpc import blasfeo
-    from wbmpc.closed_loop import ClosedLoopConfig, machine_description, run_closed_loop
-    from wbmpc.gait import make_gait
-    from wbmpc.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
+    from wbmpc.ocp.gait import make_gait
+    from wbmpc.sim.closed_loop import ClosedLoopConfig, machine_description, run_closed_loop
+    from wbmpc.solver import blasfeo
 
     config = MPCConfig(gait=make_gait("trot"), solver=solver, compiled=compiled)
     if compile_flags is not None:
@@ -154,7 +155,7 @@ def plot(records: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    from wbmpc.plots import save_figure
+    from wbmpc.viz.plots import save_figure
 
     fig = Figure(figsize=(11, 4))
     ax1, ax2 = fig.subplots(1, 2)
@@ -236,7 +237,7 @@ def _worker() -> None:
     ``{"cmd": "exit"}`` on stdin; the worker answers each ``go`` with ``{"event": "paused"}`` (it waits for
     the next ``go``) or ``{"event": "record", ...}`` (the case is done).
     """
-    from wbmpc.robot import load_b1_z1
+    from wbmpc.model.robot import load_b1_z1
 
     protocol = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # whatever CasADi or a solver prints goes to stderr, never into the protocol
@@ -320,7 +321,7 @@ def run_variants(
         variants: BLASFEO choices (``WBMPC_BLASFEO`` of each worker).
         batch: Solves per turn (the turns go A B B A A B ... so neither variant always runs first).
     """
-    from wbmpc import blasfeo
+    from wbmpc.solver import blasfeo
 
     workers: dict[str, subprocess.Popen] = {}
 
@@ -339,7 +340,7 @@ def run_variants(
         try:
             for variant in variants:
                 workers[variant] = subprocess.Popen(
-                    [sys.executable, "-m", "wbmpc.bench", "--worker"],
+                    [sys.executable, "-m", "wbmpc.studies.bench", "--worker"],
                     stdin=subprocess.PIPE,
                     stdout=subprocess.PIPE,
                     text=True,
@@ -382,7 +383,9 @@ def run_variants(
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(prog="python -m wbmpc.bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m wbmpc.studies.bench", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("--quick", action="store_true", help="small problem, few steps (about a minute)")
     parser.add_argument("--steps", type=int, default=None, help="measured MPC steps per case (default 200)")
     parser.add_argument("--warmup", type=int, default=None, help="discarded solves at the start (default 20)")
@@ -393,7 +396,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         "--blasfeo",
         choices=("native", "generic", "both"),
         default=None,
-        help="BLASFEO under Fatrop (default: this process's, see wbmpc.blasfeo); both: interleaved "
+        help="BLASFEO under Fatrop (default: this process's, see wbmpc.solver.blasfeo); both: interleaved "
         "comparison of the Fatrop cases in two worker processes",
     )
     parser.add_argument("--batch", type=int, default=10, help="solves per turn with --blasfeo (default 10)")
@@ -410,8 +413,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.worker:
         _worker()
         return []
-    from wbmpc import blasfeo
-    from wbmpc.robot import load_b1_z1
+    from wbmpc.model.robot import load_b1_z1
+    from wbmpc.solver import blasfeo
 
     quick = args.quick or quick_mode()
     steps = args.steps or (20 if quick else 200)

@@ -16,8 +16,11 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.diagnostics import exception_status, run_prechecks, solver_status
-from wbmpc.gait import (
+from wbmpc.control.diagnostics import exception_status, run_prechecks, solver_status
+from wbmpc.model.robot import Robot
+from wbmpc.model.statics import static_equilibrium
+from wbmpc.ocp import OCP, OCPSettings
+from wbmpc.ocp.gait import (
     Gait,
     GaitSchedule,
     SwingParams,
@@ -25,10 +28,7 @@ from wbmpc.gait import (
     make_gait,
     swing_vertical_velocity,
 )
-from wbmpc.ocp import OCP, OCPSettings
-from wbmpc.robot import Robot
-from wbmpc.statics import static_equilibrium
-from wbmpc.time_grid import geometric_time_steps, node_times
+from wbmpc.ocp.time_grid import geometric_time_steps, node_times
 
 SOLVERS = ("fatrop", "ipopt")
 DT_BOUNDS = (1e-4, 1.0)  # [s] sane range of the MPC's time steps
@@ -107,8 +107,8 @@ class MPCConfig:
     """Runtime configuration (every field can change between solves without a rebuild, except solver).
 
     Attributes:
-        gait: Gait (see :func:`wbmpc.gait.make_gait`) or a :class:`wbmpc.gait.GaitSchedule` of gaits in
-            time (stand, trot, stand); the same object decides the plant's contacts in a closed loop.
+        gait: Gait (see :func:`wbmpc.ocp.gait.make_gait`) or a :class:`wbmpc.ocp.gait.GaitSchedule` of gaits
+            in time (stand, trot, stand); the same object decides the plant's contacts in a closed loop.
         swing: Swing-foot spline parameters.
         dt_min, dt_max: First and last time step [s] of the geometric grid (equal: uniform grid).
         mu: Friction coefficient of the cone constraint.
@@ -121,7 +121,7 @@ class MPCConfig:
         mu_init_warm, mu_init_cold: Initial barrier parameter for warm and cold starts.
         dual_warm_start: Pass the previous constraint multipliers as the initial dual guess.
         compiled: Solve with the generated and compiled NLP functions (Fatrop only; built once and
-            cached, see :mod:`wbmpc.codegen`); structural like ``solver``.
+            cached, see :mod:`wbmpc.solver.codegen`); structural like ``solver``.
         compile_flags: gcc flags of the compiled library.
         cold_retry: After a failed warm-started solve, retry once from a cold start (same tick) before
             falling back to the previous plan.
@@ -183,7 +183,7 @@ class MPCConfig:
             )
         if not isinstance(self.gait, Gait | GaitSchedule):
             raise ValueError(
-                f"MPCConfig.gait must be a Gait or GaitSchedule (see wbmpc.gait.make_gait), got {self.gait!r}"
+                f"MPCConfig.gait must be a Gait or GaitSchedule (see wbmpc.ocp.gait), got {self.gait!r}"
             )
 
 
@@ -294,7 +294,7 @@ class WholeBodyMPC:
                 }
             opts = {"print_time": False, "ipopt": ipopt}
         if cfg.compiled:
-            from wbmpc import codegen
+            from wbmpc.solver import codegen
 
             if self.compiled_nlp is None:
                 self.compiled_nlp = codegen.build(self.ocp, tuple(cfg.compile_flags), progress=self.verbose)
@@ -469,7 +469,9 @@ class WholeBodyMPC:
         q_hat[3:7] /= norm
         commands = (commands or Commands()).validated()
         # Cheap physical checks (~0.1 ms): explain a failure before it happens; refuse ill-posed commands.
-        findings = tuple(run_prechecks(self.robot, q_hat, v_hat, commands, self.config.gait))
+        gait = self.config.gait
+        gait = gait.gait_at(t) if isinstance(gait, GaitSchedule) else gait  # the gait in force now
+        findings = tuple(run_prechecks(self.robot, q_hat, v_hat, commands, gait))
         for finding in findings:
             if finding.code in REFUSED_FINDINGS:
                 raise ValueError(f"command refused: {finding.message}")

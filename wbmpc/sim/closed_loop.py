@@ -1,8 +1,8 @@
 """Closed-loop simulation: MPC at 80 Hz, joint interpolation + PD at 500 Hz, a plant at 1-2 kHz.
 
 Two plants: Pinocchio's forward dynamics with the scheduled feet in rigid contact
-(:class:`wbmpc.plant.ContactPlant`, the paper's benchmark setting) or PyBullet
-(:class:`wbmpc.pybullet_sim.PyBulletPlant`: contacts, friction, scene objects, disturbances).
+(:class:`wbmpc.sim.plant.ContactPlant`, the paper's benchmark setting) or PyBullet
+(:class:`wbmpc.sim.pybullet_plant.PyBulletPlant`: contacts, friction, scene objects, disturbances).
 
 Timing: without computation delay (``delay="off"``) the simulated time waits for each solve, as in the
 paper's first simulations. With delay (``"measured"``: the solve's wall time, or a fixed number of seconds)
@@ -10,9 +10,9 @@ the simulator keeps running on the previous plan while the solver works: the new
 level ``delay`` later (rounded up to plant steps), and the next solve starts at the first MPC tick after
 that (a real-time loop cannot start a solve before the previous one returns).
 
-The controller sees the state through :class:`wbmpc.sensing.StateSensor` (ground truth by default;
+The controller sees the state through :class:`wbmpc.sim.sensing.StateSensor` (ground truth by default;
 optional noise and the paper's 50 Hz joint-velocity filter). Every run keeps a log that converts to the
-columnar :class:`wbmpc.logs.RunLog` (``result.run_log()``, ``result.save(path)``).
+columnar :class:`wbmpc.io.logs.RunLog` (``result.run_log()``, ``result.save(path)``).
 """
 
 from __future__ import annotations
@@ -25,16 +25,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.arm_task import ArmReference, heading_frame, velocity_command
-from wbmpc.diagnostics import FailureReporter
-from wbmpc.disturbances import Disturbance, Kick, Push
-from wbmpc.gait import Gait, GaitSchedule
-from wbmpc.logs import RunLog, save_log
-from wbmpc.low_level import LowLevelController
-from wbmpc.mpc import Commands, MPCSolution, WholeBodyMPC
-from wbmpc.plant import ContactPlant, fallen
-from wbmpc.sensing import SensorNoise, StateSensor
-from wbmpc.time_grid import node_times
+from wbmpc.control.arm_task import ArmReference, heading_frame, velocity_command
+from wbmpc.control.diagnostics import FailureReporter
+from wbmpc.control.low_level import LowLevelController
+from wbmpc.control.mpc import Commands, MPCSolution, WholeBodyMPC
+from wbmpc.io.logs import RunLog, save_log
+from wbmpc.ocp.gait import Gait, GaitSchedule
+from wbmpc.ocp.time_grid import node_times
+from wbmpc.sim.disturbances import Disturbance, Kick, Push
+from wbmpc.sim.plant import ContactPlant, fallen
+from wbmpc.sim.sensing import SensorNoise, StateSensor
 
 
 @dataclass
@@ -61,13 +61,13 @@ class ClosedLoopConfig:
         delay: Computation delay: ``"off"``, ``"measured"`` (each solve's wall time) or seconds.
         sensor_noise: Measurement noise (``None``: ground truth).
         velocity_cutoff_hz: Joint-velocity low-pass cut-off [Hz] (paper: 50; ``None``: unfiltered).
-        scene: PyBullet scene objects (:class:`~wbmpc.pybullet_sim.Box`, ``Wall``, ``Payload``).
-        disturbances: :class:`~wbmpc.disturbances.Kick` and ``Push`` events (PyBullet plant).
+        scene: PyBullet scene objects (:class:`~wbmpc.sim.pybullet_plant.Box`, ``Wall``, ``Payload``).
+        disturbances: :class:`~wbmpc.sim.disturbances.Kick` and ``Push`` events (PyBullet plant).
         command_schedule: ``f(t) -> dict`` overriding commands over time: keys ``base_velocity``,
             ``base_yaw_rate``, ``ee_velocity``, ``ee_force`` (values as the fields of the same names).
         ground_friction: Ground friction coefficient of the PyBullet plant.
         arm_gains: ``(kp, kd)`` of the arm joints if different from the legs' (e.g. a compliant arm).
-        gait: Gait or :class:`~wbmpc.gait.GaitSchedule` for this run (e.g.
+        gait: Gait or :class:`~wbmpc.ocp.gait.GaitSchedule` for this run (e.g.
             ``parse_gait_schedule("stand:2,trot:6,stand:2")``), replacing the MPC's for its duration;
             ``None`` keeps the MPC's. The one schedule decides the plant's contacts and the MPC's stage
             contacts, evaluated in integer plant ticks.
@@ -100,7 +100,7 @@ class ClosedLoopConfig:
 
     def __post_init__(self):
         if self.gait is not None and not isinstance(self.gait, Gait | GaitSchedule):
-            raise ValueError(f"gait must be a Gait or GaitSchedule (wbmpc.gait), got {self.gait!r}")
+            raise ValueError(f"gait must be a Gait or GaitSchedule (wbmpc.ocp.gait), got {self.gait!r}")
         if not (
             self.delay in ("off", "measured") or (isinstance(self.delay, int | float) and self.delay >= 0)
         ):
@@ -113,7 +113,7 @@ class ClosedLoopConfig:
             )
         for d in self.disturbances:
             if not isinstance(d, Kick | Push):
-                raise ValueError(f"unknown disturbance {d!r}; use wbmpc.disturbances.Kick or Push")
+                raise ValueError(f"unknown disturbance {d!r}; use wbmpc.sim.disturbances.Kick or Push")
 
     def steps(self) -> tuple[int, int, int]:
         """Total plant steps, plant steps per MPC update and per low-level update."""
@@ -194,7 +194,7 @@ class ClosedLoopLog:
         return {k: np.asarray(v) for k, v in self.__dict__.items() if k not in ("plans", "timings")}
 
     def run_log(self, meta: dict | None = None) -> RunLog:
-        """The columnar log (:class:`wbmpc.logs.RunLog`): signals at the low-level rate, one row per solve."""
+        """The columnar log (:class:`wbmpc.io.logs.RunLog`): low-level-rate signals, one row per solve."""
         arrays = self.arrays()
         n_solves = len(self.solve_t)
         solves = {k: arrays[k] for k in self.SOLVE_COLUMNS if len(arrays[k]) == n_solves}
@@ -216,7 +216,7 @@ class ClosedLoopResult:
         return self.log.run_log({"summary": self.summary})
 
     def save(self, path) -> str:
-        """Write the columnar log (``.npz``, see :mod:`wbmpc.logs`); returns the path."""
+        """Write the columnar log (``.npz``, see :mod:`wbmpc.io.logs`); returns the path."""
         return str(save_log(self.run_log(), path))
 
 
@@ -440,7 +440,7 @@ def make_plant(robot, config: ClosedLoopConfig):
     if config.plant == "rigid":
         return ContactPlant(robot.model, robot.foot_frames, dt=config.plant_dt, foot_radius=robot.foot_radius)
     if config.plant == "pybullet":
-        from wbmpc.pybullet_sim import PyBulletPlant
+        from wbmpc.sim.pybullet_plant import PyBulletPlant
 
         return PyBulletPlant(
             robot, dt=config.plant_dt, ground_friction=config.ground_friction, scene=config.scene
@@ -501,8 +501,8 @@ def machine_description() -> str:
 
 
 def blasfeo_record() -> dict:
-    """Which BLASFEO Fatrop ran on (see :mod:`wbmpc.blasfeo`), for run summaries."""
-    from wbmpc import blasfeo
+    """Which BLASFEO Fatrop ran on (see :mod:`wbmpc.solver.blasfeo`), for run summaries."""
+    from wbmpc.solver import blasfeo
 
     info = blasfeo.info()
     return {k: info.get(k) for k in ("choice", "reason", "library", "target", "library_features")}

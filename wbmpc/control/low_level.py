@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wbmpc.mpc import MPCSolution
+from wbmpc.control.mpc import MPCSolution
 
 
 @dataclass

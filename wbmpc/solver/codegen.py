@@ -40,7 +40,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.ocp import OCP
-from wbmpc.time_grid import symbolic_geometric_time_steps
+from wbmpc.ocp.time_grid import symbolic_geometric_time_steps
 
 NLP_FUNCTIONS = ("nlp", "nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
 
@@ -182,7 +182,8 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
 CODEGEN_VERSION = 1  # bump when the generated functions change meaning
 DEFAULT_FLAGS = ("-O1",)
 # Modules whose code shapes the generated functions (every cpin module is added by glob).
-_SOURCES = ("codegen.py", "ocp.py", "formulations.py", "time_grid.py")
+# The wbmpc sources the generated code depends on (paths in the package), plus every file of wbmpc/cpin.
+_SOURCES = ("solver/codegen.py", "ocp/builder.py", "ocp/formulations.py", "ocp/time_grid.py")
 # Significant digits of the numeric fingerprint: reloading a model gives the same key on any platform.
 FINGERPRINT_DIGITS = 12
 # Temporary build folders start with this; older wbmpc versions used tempfile's default ``tmp``.
@@ -193,7 +194,7 @@ _LEGACY_TMP_PREFIX = "tmp"
 def cache_dir() -> Path:
     """Cache folder: ``$WBMPC_CACHE_DIR`` or ``<repo>/.wbmpc_cache`` (git-ignored)."""
     env = os.environ.get("WBMPC_CACHE_DIR")
-    return Path(env) if env else Path(__file__).resolve().parent.parent / ".wbmpc_cache"
+    return Path(env) if env else Path(__file__).resolve().parents[2] / ".wbmpc_cache"
 
 
 def _number(x) -> str:
@@ -262,7 +263,7 @@ def _digest(data, n: int) -> str:
 
 
 def _sources_sha256() -> str:
-    package = Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parents[1]
     files = [package / f for f in _SOURCES] + sorted((package / "cpin").glob("*.py"))
     digest = hashlib.sha256()
     for path in files:
@@ -393,7 +394,7 @@ def build(
             return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], False)
         start = time.perf_counter()
         if progress:
-            print(f"[wbmpc.codegen] generating C for {ocp.n_nodes} nodes ({key}) ...", flush=True)
+            print(f"[wbmpc.solver.codegen] generating C for {ocp.n_nodes} nodes ({key}) ...", flush=True)
         with tempfile.TemporaryDirectory(prefix=f"{_TMP_PREFIX}{os.getpid()}-", dir=folder) as tmp:
             tmp = Path(tmp)
             generator = ca.CodeGenerator("wbmpc_nlp.c", {"with_header": True})
@@ -422,7 +423,8 @@ def build(
         )
         if progress:
             print(
-                f"[wbmpc.codegen] built {library} in {build_s:.0f} s (gcc peak {peak_mb:.0f} MB)", flush=True
+                f"[wbmpc.solver.codegen] built {library} in {build_s:.0f} s (gcc peak {peak_mb:.0f} MB)",
+                flush=True,
             )
         return CompiledNLP(library, key, build_s, peak_mb, c_bytes, True)
 
@@ -505,7 +507,7 @@ def _compile(c_file: Path, output: Path, flags, progress: bool, c_bytes: int) ->
             bar.refresh()
         elif progress and time.perf_counter() - last > 15.0:  # no terminal: a line every 15 s
             last = time.perf_counter()
-            print(f"[wbmpc.codegen] {desc}: {last - start:.0f} s", flush=True)
+            print(f"[wbmpc.solver.codegen] {desc}: {last - start:.0f} s", flush=True)
     process.returncode = os.waitstatus_to_exitcode(status)
     stderr = process.stderr.read().decode(errors="replace")
     process.stderr.close()

@@ -2,7 +2,7 @@
 
 One builder owns everything the dynamics formulations share: the time grid, the gait (contact and swing
 constraints), the arm task, the joint and torque limits, the cost and the parameter vector. The dynamics
-come from a formulation object (:mod:`wbmpc.formulations`).
+come from a formulation object (:mod:`wbmpc.ocp.formulations`).
 
 Nodes ``k = 0 .. N-1`` ("N = 15" counts the terminal node); stages ``k < N-1`` have inputs. Per stage the
 constraint rows are ordered for Fatrop's structure detection: first the gap-closing transition
@@ -35,9 +35,9 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc import cpin
-from wbmpc.formulations import FORMULATIONS, make_formulation
-from wbmpc.robot import Robot
-from wbmpc.time_grid import symbolic_geometric_time_steps
+from wbmpc.model.robot import Robot
+from wbmpc.ocp.formulations import FORMULATIONS, make_formulation
+from wbmpc.ocp.time_grid import symbolic_geometric_time_steps
 
 MAX_NODES = 100  # beyond this the build and the first solve take minutes and gigabytes
 
@@ -49,7 +49,7 @@ class OCPSettings:
     Attributes:
         n_nodes: Number of nodes including the terminal one (paper: 15).
         n_tau_nodes: Nodes ``k < n_tau_nodes`` carry joint torques and torque limits (paper: k <= 2).
-        formulation: Dynamics formulation name, one of :data:`wbmpc.formulations.FORMULATIONS`.
+        formulation: Dynamics formulation name, one of :data:`wbmpc.ocp.formulations.FORMULATIONS`.
         ee_force_input: Keep the commanded end-effector force as a decision variable pinned by an
             equality row on every stage, as in the paper's layout (its Table I counts those variables).
             ``False`` (default) enters the command as the parameter it is: 3 inputs and 3 equality rows
@@ -282,7 +282,7 @@ class OCP:
 
         Args:
             k: Node index (decides the stage type: initial, torque, plain or terminal node).
-            st: The stage variables (:class:`wbmpc.formulations.StageVariables`).
+            st: The stage variables (:class:`wbmpc.ocp.formulations.StageVariables`).
             x_next: State of node ``k + 1`` (for the transition), ``None`` at the terminal node.
             p: Shared parameter blocks (symbols).
             sp: Per-stage parameters (``dt``, ``contact``, ``swing_vz``, ``force_des``, ``ee_velocity``).

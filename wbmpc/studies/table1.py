@@ -10,8 +10,8 @@ a warm-up. Timing assertions never go in tests: this command measures and writes
 * ``data/bench/table1.md`` (the table as markdown),
 * ``data/output/bench/table1.png`` (solve times and instruction counts).
 
-    python -m wbmpc.table1            # full run: 6 builds + 12 closed loops (about 40 min on 2 cores)
-    python -m wbmpc.table1 --quick    # 5 nodes, few steps, in-process only (about a minute)
+    python -m wbmpc.studies.table1            # full run: 6 builds + 12 closed loops (about 40 min on 2 cores)
+    python -m wbmpc.studies.table1 --quick    # 5 nodes, few steps, in-process only (about a minute)
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.formulations import FORMULATIONS
+from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.quick import quick_mode
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 #: Low-level gains of the benchmark. With pure feed-forward torques (0, 0) the centroidal-velocity
 #: plans (torques from RNEA on finite-differenced velocity inputs) fall within 0.6 s; a small PD keeps
@@ -88,8 +88,8 @@ def table_row(
     progress: bool,
 ) -> dict:
     """One formulation: layout, instruction count, in-process (and compiled) closed-loop timings."""
-    from wbmpc.bench import run_case
     from wbmpc.ocp import OCP, OCPSettings
+    from wbmpc.studies.bench import run_case
 
     # The paper's layout (the arm force a pinned input), so that the decision variables compare with Table I.
     ocp = OCP(robot, OCPSettings(n_nodes=nodes, formulation=formulation, ee_force_input=True))
@@ -170,7 +170,7 @@ def load_table(path: Path | str | None = None) -> list[dict]:
     """
     path = Path(path) if path is not None else REPO_ROOT / "data/bench/table1.csv"
     if not path.exists():
-        raise FileNotFoundError(f"no Table I results at {path}; run `python -m wbmpc.table1` first")
+        raise FileNotFoundError(f"no Table I results at {path}; run `python -m wbmpc.studies.table1` first")
     with path.open() as f:
         return [{key: _parse(value) for key, value in row.items()} for row in csv.DictReader(f)]
 
@@ -203,7 +203,7 @@ def plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    from wbmpc.plots import save_figure
+    from wbmpc.viz.plots import save_figure
 
     fig = Figure(figsize=(12, 4.2))
     ax1, ax2 = fig.subplots(1, 2)
@@ -229,7 +229,9 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(prog="python -m wbmpc.table1", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m wbmpc.studies.table1", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("--quick", action="store_true", help="5 nodes, few steps, in-process only")
     parser.add_argument("--steps", type=int, default=None, help="measured MPC steps per run (default 200)")
     parser.add_argument("--warmup", type=int, default=None, help="discarded solves at the start (default 20)")
@@ -241,7 +243,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--output", type=Path, default=None, help="CSV path (default data/bench/table1.csv)")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
-    from wbmpc.robot import load_b1_z1
+    from wbmpc.model.robot import load_b1_z1
 
     quick = args.quick or quick_mode()
     steps = args.steps or (10 if quick else 200)

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.gait import default_force_distribution
-from wbmpc.robot import Robot
+from wbmpc.model.robot import Robot
+from wbmpc.ocp.gait import default_force_distribution
 
 
 @dataclass

@@ -4,11 +4,11 @@ Each experiment is a function ``name(quick=None, progress=True, log_dir=None) ->
 builds the MPC, runs the closed loop(s) in PyBullet, and returns the key numbers (``result.summary``, JSON
 ready), the runs (logs) and a paper-style figure (``result.figure``). The command
 
-    python -m wbmpc.experiments                      # all, full runs -> data/results/sim/<name>.json
-    python -m wbmpc.experiments wiping --quick       # one, quick mode -> data/output/sim/<name>.json
+    python -m wbmpc.studies.experiments                      # all, full runs -> data/results/sim/<name>.json
+    python -m wbmpc.studies.experiments wiping --quick       # one, quick mode -> data/output/sim/<name>.json
 
 writes the summaries, the figures (``data/output/sim/<name>.png``) and the columnar logs
-(``data/output/sim/logs/<name>_<run>.npz``, see :mod:`wbmpc.logs`).
+(``data/output/sim/logs/<name>_<run>.npz``, see :mod:`wbmpc.io.logs`).
 
 Full runs use the compiled Fatrop solver and 15 nodes; quick mode (``WBMPC_QUICK=1``) uses the in-process
 solver, 10 nodes and about a second of simulated time, enough to check each experiment's key outcome.
@@ -36,20 +36,20 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.arm_task import ArmReference
-from wbmpc.closed_loop import ClosedLoopConfig, ClosedLoopResult, machine_description, run_closed_loop
-from wbmpc.disturbances import Kick, Push
-from wbmpc.gait import make_gait
-from wbmpc.logs import json_default
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.arm_task import ArmReference
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.io.logs import json_default
+from wbmpc.model.robot import Robot, load_b1_z1
 from wbmpc.ocp import OCPSettings
-from wbmpc.plots import save_figure
-from wbmpc.pybullet_sim import Box, Payload, Wall
+from wbmpc.ocp.gait import make_gait
+from wbmpc.ocp.time_grid import geometric_time_steps
 from wbmpc.quick import quick_mode
-from wbmpc.robot import Robot, load_b1_z1
-from wbmpc.time_grid import geometric_time_steps
+from wbmpc.sim.closed_loop import ClosedLoopConfig, ClosedLoopResult, machine_description, run_closed_loop
+from wbmpc.sim.disturbances import Kick, Push
+from wbmpc.sim.pybullet_plant import Box, Payload, Wall
+from wbmpc.viz.plots import save_figure
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+REPO_ROOT = Path(__file__).resolve().parents[2]
 GAIT_PERIOD = 0.8  # s, trot (paper)
 
 
@@ -166,7 +166,7 @@ def _robot_front(robot: Robot, q: np.ndarray) -> float:
     end-effector frame (``gripper_center`` sits 7.7 cm behind the tip on the B1 + Z1)."""
     import pybullet as p
 
-    from wbmpc.pybullet_sim import PyBulletPlant
+    from wbmpc.sim.pybullet_plant import PyBulletPlant
 
     with PyBulletPlant(robot) as plant:
         plant.reset(q, np.zeros(robot.nv))
@@ -198,7 +198,8 @@ def _pitch(q: np.ndarray) -> np.ndarray:
 def arm_tracking(quick=None, progress=True, robot=None) -> ExperimentResult:
     """Whole-body adaptability: trot at 0.2 m/s while the end effector tracks a low/high reference.
 
-    The reference (:class:`wbmpc.arm_task.ArmReference`) moves the gripper 15 cm down and up (5 cm fore-aft)
+    The reference (:class:`wbmpc.control.arm_task.ArmReference`) moves the gripper 15 cm down and up
+    (5 cm fore-aft)
     with a 5 s period, ramped in over 1 s. Pure feed-forward torques (Kp = Kd = 0), no delay (paper).
     Reports the end-effector RMS error and how base height and pitch adapt.
     """
@@ -704,7 +705,9 @@ def save(
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m wbmpc.experiments", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m wbmpc.studies.experiments", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("names", nargs="*", default=list(EXPERIMENTS), help=f"any of {list(EXPERIMENTS)}")
     parser.add_argument("--quick", action="store_true", help="quick mode (also with WBMPC_QUICK=1)")
     parser.add_argument("--no-logs", action="store_true", help="do not write the columnar logs")

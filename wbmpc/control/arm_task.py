@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.mpc import heading
+from wbmpc.control.mpc import heading
 
 
 @dataclass

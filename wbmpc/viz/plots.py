@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 from matplotlib.figure import Figure
 
-from wbmpc.robot import Robot
+from wbmpc.model.robot import Robot
 
 FOOT_COLORS = ("#ff7f0e", "#2ca02c", "#9467bd", "#8c564b")  # FL, FR, RL, RR
 EE_COLOR = "#1f77b4"
@@ -233,7 +233,7 @@ def plot_plan(plan, robot: Robot) -> Figure:
     every panel.
 
     Args:
-        plan: A :class:`wbmpc.mpc.MPCSolution`.
+        plan: A :class:`wbmpc.control.mpc.MPCSolution`.
         robot: The robot (frames, mass).
 
     Returns:

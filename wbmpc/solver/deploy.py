@@ -2,7 +2,7 @@
 
 :func:`export` writes, into one folder:
 
-* ``libwbmpc_nlp.so`` / ``wbmpc_nlp.h``: the compiled NLP functions (:mod:`wbmpc.codegen`, from the cache);
+* ``libwbmpc_nlp.so`` / ``wbmpc_nlp.h``: the compiled NLP functions (:mod:`wbmpc.solver.codegen`, cached);
 * ``wbmpc_solver.c`` / ``.h`` / ``libwbmpc_solver.so``: CasADi's generated Fatrop solver calling them,
   linked against the Fatrop and Blasfeo libraries shipped in the casadi wheel;
 * ``layout.json``: the solver inputs (``x0, p, lbx, ubx, lbg, ubg, lam_x0, lam_g0``) and outputs with their
@@ -25,7 +25,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from wbmpc.mpc import WholeBodyMPC
+from wbmpc.control.mpc import WholeBodyMPC
 
 SOLVER_NAME = "wbmpc_solver"
 

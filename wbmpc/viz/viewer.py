@@ -1,7 +1,7 @@
 """Meshcat visualisation: the robot, contact forces, predicted foot and end-effector paths, replays.
 
 :func:`visual_model` rebuilds the robot's visual geometry with the same locked joints as
-:attr:`wbmpc.robot.Robot.model`. :class:`Viewer` wraps Pinocchio's ``MeshcatVisualizer`` on a meshcat
+:attr:`wbmpc.model.robot.Robot.model`. :class:`Viewer` wraps Pinocchio's ``MeshcatVisualizer`` on a meshcat
 server that it starts itself (a zmq subprocess; it runs headless, a browser is only needed to look)::
 
     viewer = Viewer(robot)
@@ -38,8 +38,8 @@ import zmq
 from meshcat.animation import Animation
 from pinocchio.visualize import MeshcatVisualizer
 
-from wbmpc.plots import EE_COLOR, FOOT_COLORS
-from wbmpc.robot import Robot, RobotModelError, example_robot_data_dir
+from wbmpc.model.robot import Robot, RobotModelError, example_robot_data_dir
+from wbmpc.viz.plots import EE_COLOR, FOOT_COLORS
 
 FOOT_FORCE_COLOR = 0xD62728  # red
 ARM_FORCE_COLOR = 0x1F5FD0  # blue
@@ -544,7 +544,7 @@ class Viewer:
         base paths (a dot per node) and translucent ghosts of the robot at ``ghost_nodes``.
 
         Args:
-            plan: A :class:`wbmpc.mpc.MPCSolution`.
+            plan: A :class:`wbmpc.control.mpc.MPCSolution`.
             ghost_nodes: Node indices shown as translucent robots (each costs one more copy of the meshes).
             foot_scale, arm_scale: Arrow lengths per newton [m/N].
 

@@ -40,12 +40,13 @@ Dynamic Quadruped Robot", IROS 2018):
    sensors): a trust ``c_i`` in [0, 1] (:func:`contact_trust`, 0 at touchdown and lift-off) scales the
    measurement and foot process covariances by ``1 + (1 - c_i) k``.
 
-The joint velocities are low-passed at 50 Hz (:class:`wbmpc.sensing.LowPassFilter`) before use, as the
+The joint velocities are low-passed at 50 Hz (:class:`wbmpc.sim.sensing.LowPassFilter`) before use, as the
 encoders' finite differences are noisy. The IMU is assumed at the base frame origin, axes aligned with the
 base.
 
-Returned states follow the Pinocchio free-flyer convention used by :meth:`wbmpc.mpc.WholeBodyMPC.solve` and
-reported by the plants (:class:`wbmpc.plant.PlantState`): ``q = [p (world), quaternion (x, y, z, w), joint
+Returned states follow the Pinocchio free-flyer convention used by
+:meth:`wbmpc.control.mpc.WholeBodyMPC.solve` and
+reported by the plants (:class:`wbmpc.sim.plant.PlantState`): ``q = [p (world), quaternion (x, y, z, w), joint
 angles]`` and ``v = [R^T v (base frame), omega (base frame), joint rates]``.
 
 Example:
@@ -61,8 +62,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.robot import Robot
-from wbmpc.sensing import LowPassFilter
+from wbmpc.model.robot import Robot
+from wbmpc.sim.sensing import LowPassFilter
 
 __all__ = [
     "EstimatorNoise",
@@ -292,7 +293,7 @@ def contact_trust(schedule, t: float, window: float = 0.04, samples: int = 8) ->
     the scheduled one (Cheetah 3's phase-based trust).
 
     Args:
-        schedule: A :class:`~wbmpc.gait.Gait` or :class:`~wbmpc.gait.GaitSchedule` (anything with
+        schedule: A :class:`~wbmpc.ocp.gait.Gait` or :class:`~wbmpc.ocp.gait.GaitSchedule` (anything with
             ``sample(times).contact`` of shape (n_feet, len(times))).
         t: Time [s].
         window: Ramp duration [s] (0: plain contact flags).

@@ -190,7 +190,7 @@ class GaitSchedule:
             except (TypeError, ValueError) as err:
                 raise ValueError(f"segment {j} must be a (gait, duration) pair, got {segment!r}") from err
             if not isinstance(gait, Gait):
-                raise ValueError(f"segment {j}: {gait!r} is not a Gait (see wbmpc.gait.make_gait)")
+                raise ValueError(f"segment {j}: {gait!r} is not a Gait (see wbmpc.ocp.gait.make_gait)")
             if abs(gait.tick - self.tick) > 1e-15:
                 raise ValueError(
                     f"segment {j}: gait tick {gait.tick} s differs from the schedule's {self.tick} s"
@@ -291,7 +291,7 @@ def as_schedule(gait: Gait | GaitSchedule) -> GaitSchedule:
         return gait
     if isinstance(gait, Gait):
         return GaitSchedule([(gait, 1e9)], gait.tick)
-    raise ValueError(f"expected a Gait or GaitSchedule (see wbmpc.gait), got {gait!r}")
+    raise ValueError(f"expected a Gait or GaitSchedule (see wbmpc.ocp.gait), got {gait!r}")
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The main job: B1 + Z1 trotting at 0.2 m/s for 10 s while the arm tracks a reference reaching low and high.
 
-Run with ``bash scripts/demo.sh`` (sets up the environment) or ``python -m wbmpc.demo --help``.
+Run with ``bash scripts/demo.sh`` (sets up the environment) or ``python -m wbmpc.studies.demo --help``.
 Writes under ``data/output/demo/``: ``summary.json``, ``log.npz``, PNG plots and a self-contained meshcat
 replay ``replay.html``. With ``--save-results`` the summary is also copied to
 ``data/results/demo_summary.json`` (the committed copy of the full default run).
@@ -17,11 +17,11 @@ from pathlib import Path
 
 from wbmpc.quick import pick
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m wbmpc.demo", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m wbmpc.studies.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="b1_z1", help="built-in robot: b1_z1 (default) or b1")
     parser.add_argument(
         "--gait",
@@ -120,11 +120,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser = build_parser()
     args = parser.parse_args(argv)
     check_arguments(parser, args)
-    from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
-    from wbmpc.gait import make_gait, parse_gait_schedule
-    from wbmpc.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.model.robot import load
     from wbmpc.ocp import OCPSettings
-    from wbmpc.robot import load
+    from wbmpc.ocp.gait import make_gait, parse_gait_schedule
+    from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
     try:
         if ":" in args.gait or "," in args.gait:
@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = args.output
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    result.save(out / "log.npz")  # columnar run log (wbmpc.logs), read with wbmpc.logs.load_log
+    result.save(out / "log.npz")  # columnar run log (wbmpc.io.logs), read with wbmpc.io.logs.load_log
     _figures(result, robot, out, args.speed)
     if not args.no_replay:
         _replay(result, robot, out)
@@ -194,7 +194,7 @@ def _figures(result, robot, out: Path, speed: float) -> None:
         import matplotlib
 
         matplotlib.use("Agg")
-        from wbmpc import plots
+        from wbmpc.viz import plots
     except ImportError as exc:  # plots are a convenience: never fail the run for them
         print(f"plots skipped: {exc}", file=sys.stderr)
         return

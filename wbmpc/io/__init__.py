@@ -1,0 +1,1 @@
+"""Run logs: the columnar format and ROS 2 bags."""

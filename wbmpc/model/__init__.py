@@ -1,0 +1,1 @@
+"""Robot models: URDF/SRDF loading with checks, locked joints, limits, static equilibrium."""

@@ -1,0 +1,1 @@
+"""Simulation: the rigid-contact and PyBullet plants, sensing, disturbances, the closed loop."""

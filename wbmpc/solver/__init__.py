@@ -1,0 +1,1 @@
+"""Solving: generated and compiled NLP functions and their cache, the deployment artefact, BLASFEO."""

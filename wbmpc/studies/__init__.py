@@ -1,0 +1,1 @@
+"""Studies and command lines: the demo, benchmarks, Table I, experiments, sweeps."""
