@@ -1,13 +1,25 @@
 """Bad inputs are refused up front with an error that names the input (a growing catalogue, issue 12)."""
 
+import functools
+import warnings
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from wbmpc.control.arm_task import ArmReference
+from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
-from wbmpc.model.robot import load_b1_z1
+from wbmpc.estimation import EstimatorNoise, StateEstimator
+from wbmpc.io.rosbag import TopicMap
+from wbmpc.model.robot import RobotModelError, example_robot_data_dir, load, load_b1_z1, load_robot
+from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCPSettings
-from wbmpc.ocp.gait import make_gait
+from wbmpc.ocp.gait import Gait, GaitSchedule, SwingParams, make_gait, parse_gait_schedule
 from wbmpc.sim.closed_loop import ClosedLoopConfig
+from wbmpc.sim.disturbances import Kick, Push
+from wbmpc.sim.pybullet_plant import Box, Payload, Wall
+from wbmpc.sim.sensing import LowPassFilter, SensorNoise
 
 MPC_CONFIGS = [
     ({"dt_min": 0.0}, "dt_min must be a positive number"),
@@ -145,3 +157,1054 @@ def test_a_force_beyond_the_arm_torque_limits_is_explained_on_the_plan(mpc):
     codes = {f.code for f in plan.findings}
     assert "ee_force_exceeds_torque_limit" in codes
     assert any("joint3" in f.message for f in plan.findings)
+
+
+# ============================================================================================================
+# The catalogue (issue 12): each case builds one bad input and names the exception and a message fragment that
+# says which input is wrong. Cases are grouped by the class of the original problem:
+#   silent  - was accepted silently (NaN poses, negative gains, a payload that became static, ...);
+#   unclear - raised, but the error did not name the cause (ZeroDivisionError, Boost.Python, ...);
+#   named   - already refused with a clear message (kept so that it stays so).
+# ============================================================================================================
+NAN, INF = float("nan"), float("inf")
+ROBOTS = example_robot_data_dir() / "b1_description"
+B1Z1_URDF, B1Z1_SRDF = ROBOTS / "urdf/b1-z1.urdf", ROBOTS / "srdf/b1-z1.srdf"
+B1_URDF, B1_SRDF = ROBOTS / "urdf/b1.urdf", ROBOTS / "srdf/b1.srdf"
+FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+LOCKED = ("joint5", "joint6", "jointGripper")
+
+
+def _robot(**kwargs):
+    """``load_robot`` on the B1 + Z1 files with the default arguments overridden by ``kwargs``."""
+    args = {"urdf": B1Z1_URDF, "srdf": B1Z1_SRDF, "foot_frames": FEET, "ee_frame": "gripperMover"}
+    args |= {"locked_joints": LOCKED, "reference_pose": "standing_with_arm_up"}
+    return load_robot(**(args | kwargs))
+
+
+@functools.cache
+def _b1z1():
+    return load_b1_z1()
+
+
+def _srdf_file(text: str) -> Path:
+    import tempfile
+
+    path = Path(tempfile.mkdtemp(prefix="wbmpc_bad_srdf_")) / "poses.srdf"
+    path.write_text(text)
+    return path
+
+
+def _three_feet_mpc():
+    robot = _robot(foot_frames=FEET[:3])
+    return WholeBodyMPC(robot, OCPSettings(n_nodes=4))
+
+
+def _mpc_solve(**kwargs):
+    mpc = _module_mpc()
+    args = {"q_hat": mpc.robot.q_nominal, "v_hat": np.zeros(mpc.robot.nv)} | kwargs
+    return mpc.solve(**args)
+
+
+@functools.cache
+def _module_mpc():
+    return WholeBodyMPC(_b1z1(), OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))
+
+
+def _statics(contact, **kwargs):
+    robot = _b1z1()
+    return static_equilibrium(robot, robot.q_nominal, contact, **kwargs)
+
+
+def _estimator(**kwargs):
+    return StateEstimator(_b1z1(), **({"dt": 0.002} | kwargs))
+
+
+def _closed_loop(**kwargs):
+    return ClosedLoopConfig(**kwargs)
+
+
+def _pb_loop(**kwargs):
+    return ClosedLoopConfig(plant="pybullet", **kwargs)
+
+
+def _mutated_steps():
+    config = ClosedLoopConfig()
+    config.mpc_rate = 0.0  # a field changed after construction is checked when the run starts
+    return config.steps()
+
+
+C = ValueError
+R = RobotModelError
+CATALOGUE = [
+    # --- closed loop: rates, durations, gains, commands ------------------------------------------------
+    (
+        "silent",
+        "loop kp < 0",
+        lambda: _closed_loop(kp=-10.0),
+        C,
+        "ClosedLoopConfig.kp must be a finite number >= 0",
+    ),
+    ("silent", "loop kd < 0", lambda: _closed_loop(kd=-1.0), C, "ClosedLoopConfig.kd must be"),
+    ("silent", "loop kp NaN", lambda: _closed_loop(kp=NAN), C, "ClosedLoopConfig.kp"),
+    ("silent", "loop kd inf", lambda: _closed_loop(kd=INF), C, "ClosedLoopConfig.kd"),
+    ("silent", "loop kp string", lambda: _closed_loop(kp="30"), C, "ClosedLoopConfig.kp"),
+    (
+        "silent",
+        "arm_gains negative",
+        lambda: _closed_loop(arm_gains=(-5.0, 1.0)),
+        C,
+        "ClosedLoopConfig.arm_gains",
+    ),
+    ("silent", "arm_gains NaN", lambda: _closed_loop(arm_gains=(5.0, NAN)), C, "ClosedLoopConfig.arm_gains"),
+    (
+        "silent",
+        "arm_gains three",
+        lambda: _closed_loop(arm_gains=(5.0, 1.0, 2.0)),
+        C,
+        "ClosedLoopConfig.arm_gains",
+    ),
+    ("silent", "arm_kp < 0", lambda: _closed_loop(arm_kp=-4.0), C, "ClosedLoopConfig.arm_kp"),
+    ("unclear", "mpc_rate 0", lambda: _closed_loop(mpc_rate=0), C, "ClosedLoopConfig.mpc_rate must be"),
+    (
+        "unclear",
+        "low_level_rate 0",
+        lambda: _closed_loop(low_level_rate=0),
+        C,
+        "ClosedLoopConfig.low_level_rate",
+    ),
+    ("silent", "mpc_rate < 0", lambda: _closed_loop(mpc_rate=-80.0), C, "ClosedLoopConfig.mpc_rate"),
+    ("unclear", "mpc_rate NaN", lambda: _closed_loop(mpc_rate=NAN), C, "ClosedLoopConfig.mpc_rate"),
+    ("unclear", "plant_dt 0", lambda: _closed_loop(plant_dt=0.0), C, "ClosedLoopConfig.plant_dt"),
+    ("unclear", "plant_dt NaN", lambda: _closed_loop(plant_dt=NAN), C, "ClosedLoopConfig.plant_dt"),
+    (
+        "named",
+        "plant_dt not dividing",
+        lambda: _closed_loop(plant_dt=0.0007).steps(),
+        C,
+        "plant_dt=0.0007 s must divide",
+    ),
+    (
+        "silent",
+        "low level slower than MPC",
+        lambda: _closed_loop(low_level_rate=40.0, mpc_rate=80.0),
+        C,
+        "low_level_rate (40.0 Hz) must be >= mpc_rate",
+    ),
+    ("unclear", "duration NaN", lambda: _closed_loop(duration=NAN), C, "ClosedLoopConfig.duration"),
+    ("silent", "duration 0", lambda: _closed_loop(duration=0.0), C, "ClosedLoopConfig.duration"),
+    ("silent", "duration < 0", lambda: _closed_loop(duration=-1.0), C, "ClosedLoopConfig.duration"),
+    ("unclear", "duration inf", lambda: _closed_loop(duration=INF), C, "ClosedLoopConfig.duration"),
+    (
+        "silent",
+        "duration below a plant step",
+        lambda: _closed_loop(duration=1e-4),
+        C,
+        "shorter than one plant step",
+    ),
+    ("silent", "mutated after construction", _mutated_steps, C, "ClosedLoopConfig.mpc_rate"),
+    ("silent", "max_tilt 0", lambda: _closed_loop(max_tilt=0.0), C, "ClosedLoopConfig.max_tilt"),
+    (
+        "silent",
+        "base_velocity NaN",
+        lambda: _closed_loop(base_velocity=(NAN, 0, 0)),
+        C,
+        "ClosedLoopConfig.base_velocity",
+    ),
+    (
+        "unclear",
+        "base_velocity two",
+        lambda: _closed_loop(base_velocity=(0.2, 0.0)),
+        C,
+        "ClosedLoopConfig.base_velocity",
+    ),
+    (
+        "silent",
+        "base_yaw_rate NaN",
+        lambda: _closed_loop(base_yaw_rate=NAN),
+        C,
+        "ClosedLoopConfig.base_yaw_rate",
+    ),
+    ("silent", "ee_force inf", lambda: _closed_loop(ee_force=(0, 0, INF)), C, "ClosedLoopConfig.ee_force"),
+    (
+        "unclear",
+        "ee_velocity string",
+        lambda: _closed_loop(ee_velocity="up"),
+        C,
+        "ClosedLoopConfig.ee_velocity",
+    ),
+    (
+        "named",
+        "delay NaN",
+        lambda: _closed_loop(delay=NAN),
+        C,
+        "delay must be 'off', 'measured' or seconds >= 0",
+    ),
+    ("silent", "delay inf", lambda: _closed_loop(delay=INF), C, "ClosedLoopConfig.delay"),
+    ("named", "delay word", lambda: _closed_loop(delay="sometimes"), C, "delay must be 'off'"),
+    (
+        "silent",
+        "velocity cutoff 0",
+        lambda: _closed_loop(velocity_cutoff_hz=0.0),
+        C,
+        "ClosedLoopConfig.velocity_cutoff_hz",
+    ),
+    (
+        "silent",
+        "velocity cutoff NaN",
+        lambda: _closed_loop(velocity_cutoff_hz=NAN),
+        C,
+        "ClosedLoopConfig.velocity_cutoff_hz",
+    ),
+    (
+        "silent",
+        "ground friction < 0",
+        lambda: _closed_loop(ground_friction=-0.8),
+        C,
+        "ClosedLoopConfig.ground_friction",
+    ),
+    (
+        "unclear",
+        "arm_reference a tuple",
+        lambda: _closed_loop(arm_reference=(0.5, 0.0, 0.4)),
+        C,
+        "ClosedLoopConfig.arm_reference must be an ArmReference",
+    ),
+    (
+        "unclear",
+        "sensor_noise a float",
+        lambda: _closed_loop(sensor_noise=0.01),
+        C,
+        "ClosedLoopConfig.sensor_noise must be a SensorNoise",
+    ),
+    (
+        "unclear",
+        "command_schedule a dict",
+        lambda: _closed_loop(command_schedule={"ee_force": (0, 0, -10)}),
+        C,
+        "ClosedLoopConfig.command_schedule must be a function",
+    ),
+    ("named", "plant name", lambda: _closed_loop(plant="gazebo"), C, "unknown plant 'gazebo'"),
+    (
+        "named",
+        "scene on the rigid plant",
+        lambda: _closed_loop(scene=[Box((0.1, 0.1, 0.1), (1, 0, 0))]),
+        C,
+        "need plant='pybullet'",
+    ),
+    ("named", "disturbance type", lambda: _pb_loop(disturbances=["kick"]), C, "unknown disturbance 'kick'"),
+    (
+        "named",
+        "loop gait a name",
+        lambda: _closed_loop(gait="trot"),
+        C,
+        "gait must be a Gait or GaitSchedule",
+    ),
+    # --- disturbances -----------------------------------------------------------------------------------
+    ("unclear", "kick time NaN", lambda: Kick(NAN, (0, 1, 0)), C, "Kick.time must be"),
+    ("silent", "kick time < 0", lambda: Kick(-1.0, (0, 1, 0)), C, "Kick.time must be a finite number >= 0"),
+    ("unclear", "kick time string", lambda: Kick("1.0", (0, 1, 0)), C, "Kick.time"),
+    ("named", "kick delta_v two", lambda: Kick(1.0, (0, 1)), C, "Kick.delta_v must be 3 or 6"),
+    ("named", "kick delta_v NaN", lambda: Kick(1.0, (0, NAN, 0)), C, "Kick.delta_v"),
+    ("unclear", "kick delta_v string", lambda: Kick(1.0, "up"), C, "Kick.delta_v"),
+    ("silent", "push start NaN", lambda: Push(NAN, 0.5, (10, 0, 0)), C, "Push.start must be"),
+    ("silent", "push start < 0", lambda: Push(-0.5, 0.5, (10, 0, 0)), C, "Push.start"),
+    ("named", "push duration 0", lambda: Push(1.0, 0.0, (10, 0, 0)), C, "Push.duration must be"),
+    ("silent", "push duration NaN", lambda: Push(1.0, NAN, (10, 0, 0)), C, "Push.duration"),
+    (
+        "named",
+        "push target",
+        lambda: Push(1.0, 0.5, (10, 0, 0), target="arm"),
+        C,
+        "Push.target must be 'base' or 'ee'",
+    ),
+    (
+        "named",
+        "push ee wrench",
+        lambda: Push(1.0, 0.5, (10, 0, 0, 0, 0, 1), target="ee"),
+        C,
+        "Push.force must be 3",
+    ),
+    ("named", "push force inf", lambda: Push(1.0, 0.5, (INF, 0, 0)), C, "Push.force"),
+    # --- scene objects ----------------------------------------------------------------------------------
+    (
+        "silent",
+        "payload mass < 0",
+        lambda: Payload(-2.0, (1, 0, 0.05)),
+        C,
+        "Payload.mass must be a finite number > 0",
+    ),
+    ("silent", "payload mass NaN", lambda: Payload(NAN, (1, 0, 0.05)), C, "Payload.mass"),
+    ("silent", "payload mass 0", lambda: Payload(0.0, (1, 0, 0.05)), C, "Payload.mass"),
+    ("silent", "payload radius 0", lambda: Payload(1.0, (1, 0, 0.05), radius=0.0), C, "Payload.radius"),
+    ("silent", "payload position NaN", lambda: Payload(1.0, (1, NAN, 0.05)), C, "Payload.position"),
+    (
+        "named",
+        "payload attach",
+        lambda: Payload(1.0, (1, 0, 0.05), attach="glue"),
+        C,
+        "Payload.attach must be",
+    ),
+    ("named", "payload without position", lambda: Payload(1.0), C, "Payload.position is required"),
+    (
+        "silent",
+        "tether length 0",
+        lambda: Payload(1.0, (1, 0, 0.05), attach="tether", tether_length=0.0),
+        C,
+        "Payload.tether_length",
+    ),
+    (
+        "silent",
+        "tether stiffness < 0",
+        lambda: Payload(1.0, (1, 0, 0.05), tether_stiffness=-1.0),
+        C,
+        "Payload.tether_stiffness",
+    ),
+    (
+        "silent",
+        "payload friction < 0",
+        lambda: Payload(1.0, (1, 0, 0.05), friction=-0.1),
+        C,
+        "Payload.friction",
+    ),
+    (
+        "silent",
+        "rolling friction NaN",
+        lambda: Payload(1.0, (1, 0, 0.05), rolling_friction=NAN),
+        C,
+        "Payload.rolling_friction",
+    ),
+    (
+        "silent",
+        "wall zero normal",
+        lambda: Wall((1, 0, 0.5), (0, 0, 0)),
+        C,
+        "Wall.normal must be a non-zero direction",
+    ),
+    ("silent", "wall normal NaN", lambda: Wall((1, 0, 0.5), (NAN, 0, 0)), C, "Wall.normal"),
+    ("unclear", "wall normal two", lambda: Wall((1, 0, 0.5), (1, 0)), C, "Wall.normal"),
+    ("silent", "wall size < 0", lambda: Wall((1, 0, 0.5), (-1, 0, 0), size=(2.0, -1.0)), C, "Wall.size"),
+    ("silent", "wall thickness 0", lambda: Wall((1, 0, 0.5), (-1, 0, 0), thickness=0.0), C, "Wall.thickness"),
+    ("silent", "wall position NaN", lambda: Wall((1, NAN, 0.5), (-1, 0, 0)), C, "Wall.position"),
+    ("silent", "box size 0", lambda: Box((0.3, 0.0, 0.3), (1, 0, 0.15)), C, "Box.size"),
+    ("silent", "box mass < 0", lambda: Box((0.3, 0.3, 0.3), (1, 0, 0.15), mass=-5.0), C, "Box.mass"),
+    ("silent", "box yaw NaN", lambda: Box((0.3, 0.3, 0.3), (1, 0, 0.15), yaw=NAN), C, "Box.yaw"),
+    (
+        "silent",
+        "box friction < 0",
+        lambda: Box((0.3, 0.3, 0.3), (1, 0, 0.15), friction=-1.0),
+        C,
+        "Box.friction",
+    ),
+    ("unclear", "box position two", lambda: Box((0.3, 0.3, 0.3), (1, 0)), C, "Box.position"),
+    # --- commands, MPC config, OCP settings, solve inputs ----------------------------------------------
+    ("silent", "base_height < 0", lambda: Commands(base_height=-0.5).validated(), C, "command base_height"),
+    ("silent", "base_height 0", lambda: Commands(base_height=0.0).validated(), C, "command base_height"),
+    ("silent", "base_height NaN", lambda: Commands(base_height=NAN).validated(), C, "command base_height"),
+    ("silent", "base_height 50 m", lambda: Commands(base_height=50.0).validated(), C, "command base_height"),
+    (
+        "unclear",
+        "base_height string",
+        lambda: Commands(base_height="0.5").validated(),
+        C,
+        "command base_height",
+    ),
+    (
+        "named",
+        "ee_velocity (2,)",
+        lambda: Commands(ee_velocity=np.zeros(2)).validated(),
+        C,
+        "command ee_velocity must have shape (3,)",
+    ),
+    (
+        "named",
+        "angular velocity inf",
+        lambda: Commands(base_angular_velocity=[0, 0, INF]).validated(),
+        C,
+        "command base_angular_velocity",
+    ),
+    (
+        "unclear",
+        "swing a dict",
+        lambda: MPCConfig(swing={"height": 0.1}),
+        C,
+        "MPCConfig.swing must be a SwingParams",
+    ),
+    (
+        "unclear",
+        "compile_flags a string",
+        lambda: MPCConfig(compile_flags="-O2"),
+        C,
+        "MPCConfig.compile_flags must be a list",
+    ),
+    (
+        "named",
+        "mu_init_warm NaN",
+        lambda: MPCConfig(mu_init_warm=NAN),
+        C,
+        "MPCConfig.mu_init_warm must be a positive number",
+    ),
+    ("named", "dt_max inf", lambda: MPCConfig(dt_max=INF), C, "MPCConfig.dt_max must be a positive number"),
+    (
+        "named",
+        "front_force_ratio NaN",
+        lambda: MPCConfig(front_force_ratio=NAN),
+        C,
+        "MPCConfig.front_force_ratio must be in [0, 1]",
+    ),
+    (
+        "unclear",
+        "n_tau_nodes float",
+        lambda: OCPSettings(n_tau_nodes=2.5),
+        C,
+        "n_tau_nodes must be in [1, n_nodes - 1",
+    ),
+    (
+        "named",
+        "n_tau_nodes = n_nodes",
+        lambda: OCPSettings(n_nodes=5, n_tau_nodes=5),
+        C,
+        "n_tau_nodes must be in [1, n_nodes - 1 = 4]",
+    ),
+    ("named", "n_nodes bool", lambda: OCPSettings(n_nodes=True), C, "n_nodes must be an integer >= 3"),
+    (
+        "unclear",
+        "ee_force_input a string",
+        lambda: OCPSettings(ee_force_input="no"),
+        C,
+        "OCPSettings.ee_force_input must be True or False",
+    ),
+    ("unclear", "three feet", _three_feet_mpc, C, "has 3 foot frames"),
+    (
+        "unclear",
+        "MPC of a robot name",
+        lambda: WholeBodyMPC("b1_z1"),
+        C,
+        "robot must be a wbmpc.model.robot.Robot",
+    ),
+    (
+        "unclear",
+        "MPC settings a dict",
+        lambda: WholeBodyMPC(_b1z1(), {"n_nodes": 5}),
+        C,
+        "settings must be an OCPSettings",
+    ),
+    ("unclear", "solve time NaN", lambda: _mpc_solve(t=NAN), C, "t must be a finite number"),
+    (
+        "unclear",
+        "solve commands a dict",
+        lambda: _mpc_solve(commands={"ee_force": (0, 0, 0)}),
+        C,
+        "commands must be a Commands",
+    ),
+    ("named", "solve v_hat NaN", lambda: _mpc_solve(v_hat=np.full(22, NAN)), C, "v_hat contains NaN"),
+    (
+        "named",
+        "solve base_height NaN",
+        lambda: _mpc_solve(commands=Commands(base_height=NAN)),
+        C,
+        "command base_height",
+    ),
+    # --- robot loading ----------------------------------------------------------------------------------
+    (
+        "silent",
+        "foot radius < 0",
+        lambda: _robot(foot_radius=-0.02),
+        R,
+        "foot_radius must be a finite number in [0, 1]",
+    ),
+    ("silent", "foot radius NaN", lambda: _robot(foot_radius=NAN), R, "foot_radius"),
+    ("silent", "foot radius 2 m", lambda: _robot(foot_radius=2.0), R, "foot_radius"),
+    (
+        "silent",
+        "same foot four times",
+        lambda: _robot(foot_frames=("FL_foot",) * 4),
+        R,
+        "foot_frames names ['FL_foot'] more than once",
+    ),
+    (
+        "unclear",
+        "foot_frames a string",
+        lambda: _robot(foot_frames="FL_foot"),
+        R,
+        "foot_frames must be a list of names, got the string 'FL_foot'",
+    ),
+    (
+        "unclear",
+        "foot frame ids",
+        lambda: _robot(foot_frames=(10, 20, 30, 40)),
+        R,
+        "foot_frames must hold names",
+    ),
+    ("named", "no feet", lambda: _robot(foot_frames=()), R, "foot_frames must hold at least 1"),
+    (
+        "unclear",
+        "unknown frame lists frames",
+        lambda: _robot(foot_frames=("FL_fot", *FEET[1:])),
+        R,
+        "did you mean ['FL_foot'",
+    ),
+    ("unclear", "unknown ee frame lists frames", lambda: _robot(ee_frame="gripper"), R, "frames: ["),
+    ("unclear", "ee frame an id", lambda: _robot(ee_frame=5), R, "ee_frame must be a name"),
+    (
+        "named",
+        "ee frame is a foot",
+        lambda: _robot(ee_frame="FL_foot"),
+        R,
+        "ee_frame 'FL_foot' is also one of the foot_frames",
+    ),
+    (
+        "unclear",
+        "locked joint ids",
+        lambda: _robot(locked_joints=(17, 18)),
+        R,
+        "locked_joints must hold names",
+    ),
+    (
+        "unclear",
+        "locked joints a string",
+        lambda: _robot(locked_joints="joint5"),
+        R,
+        "locked_joints must be a list of names",
+    ),
+    ("named", "unknown locked joint", lambda: _robot(locked_joints=("joint9",)), R, "unknown joint 'joint9'"),
+    (
+        "unclear",
+        "extra frame bad offset",
+        lambda: _robot(extra_frames={"tcp": ("gripperMover", (0.05, 0.0))}),
+        R,
+        "extra_frames['tcp']",
+    ),
+    (
+        "unclear",
+        "extra frame not a pair",
+        lambda: _robot(extra_frames={"tcp": "gripperMover"}),
+        R,
+        "extra_frames['tcp'] must be (parent_frame, (x, y, z))",
+    ),
+    (
+        "silent",
+        "extra pose NaN",
+        lambda: _robot(extra_poses={"reach": {"joint1": NAN}}),
+        R,
+        "extra_poses['reach']['joint1']",
+    ),
+    (
+        "unclear",
+        "extra pose joint id",
+        lambda: _robot(extra_poses={"reach": {3: 0.5}}),
+        R,
+        "joints are given by name",
+    ),
+    (
+        "silent",
+        "q_reference NaN",
+        lambda: _robot(srdf=None, reference_pose=None, q_reference=np.full(26, NAN)),
+        R,
+        "q_reference must be finite",
+    ),
+    (
+        "named",
+        "q_reference short",
+        lambda: _robot(srdf=None, reference_pose=None, q_reference=np.zeros(5)),
+        R,
+        "q_reference must have shape (26,)",
+    ),
+    (
+        "silent",
+        "q_reference zero quaternion",
+        lambda: _robot(srdf=None, reference_pose=None, q_reference=np.zeros(26)),
+        R,
+        "q_reference[3:7] is the base quaternion",
+    ),
+    ("named", "unknown pose", lambda: _robot(reference_pose="sitting"), R, "SRDF pose 'sitting' not found"),
+    ("unclear", "pose an index", lambda: _robot(reference_pose=0), R, "reference_pose must be a name"),
+    (
+        "silent",
+        "front_force_ratio NaN",
+        lambda: _robot(front_force_ratio=NAN),
+        R,
+        "front_force_ratio must be",
+    ),
+    (
+        "unclear",
+        "front_force_ratio string",
+        lambda: _robot(front_force_ratio="half"),
+        R,
+        "front_force_ratio must be",
+    ),
+    (
+        "named",
+        "front_force_ratio 1",
+        lambda: _robot(front_force_ratio=1.0),
+        R,
+        "front_force_ratio must be a finite number in (0, 1)",
+    ),
+    (
+        "named",
+        "missing URDF",
+        lambda: _robot(urdf="/nonexistent/robot.urdf"),
+        R,
+        "URDF file not found: /nonexistent/robot.urdf",
+    ),
+    ("named", "missing SRDF", lambda: _robot(srdf="/nonexistent/robot.srdf"), R, "SRDF file not found"),
+    ("unclear", "URDF a number", lambda: _robot(urdf=42), R, "urdf must be a file path"),
+    (
+        "unclear",
+        "malformed SRDF",
+        lambda: _robot(srdf=_srdf_file('<robot name="x">\n<group_state name="a">\n')),
+        R,
+        "poses.srdf is not valid XML",
+    ),
+    (
+        "silent",
+        "SRDF of another robot",
+        lambda: _robot(
+            srdf=_srdf_file(
+                '<robot name="go1"><group_state name="stand" group="all">'
+                '<joint name="FL_hip" value="0"/><joint name="FL_thigh" value="0.8"/></group_state></robot>'
+            ),
+            reference_pose="stand",
+        ),
+        R,
+        "the SRDF's joints do not match the URDF's",
+    ),
+    ("named", "built-in robot name", lambda: load("spot"), R, "unknown robot 'spot'"),
+    ("named", "unknown pose of a robot", lambda: _b1z1().pose("sit"), R, "unknown pose 'sit'"),
+    ("unclear", "frame id of an int", lambda: _b1z1().frame_id(3), R, "frames are given by name"),
+    (
+        "named",
+        "joint index of unknown joint",
+        lambda: _b1z1().joint_index_v("elbow"),
+        R,
+        "unknown joint 'elbow'",
+    ),
+    # --- gaits and swing --------------------------------------------------------------------------------
+    ("named", "swing height NaN", lambda: SwingParams(height=NAN), C, "SwingParams.height must be finite"),
+    (
+        "named",
+        "swing height 0.8",
+        lambda: SwingParams(height=0.8),
+        C,
+        "SwingParams.height must be in (0, 0.5)",
+    ),
+    (
+        "silent",
+        "swing lift-off downwards",
+        lambda: SwingParams(v_liftoff=-0.1),
+        C,
+        "SwingParams.v_liftoff must be in [0, 2]",
+    ),
+    (
+        "silent",
+        "swing touchdown upwards",
+        lambda: SwingParams(v_touchdown=0.3),
+        C,
+        "SwingParams.v_touchdown must be in [-2, 0]",
+    ),
+    (
+        "named",
+        "swing lift-off NaN",
+        lambda: SwingParams(v_liftoff=NAN),
+        C,
+        "SwingParams.v_liftoff must be finite",
+    ),
+    (
+        "named",
+        "gait offsets three",
+        lambda: Gait("g", 0.8, 0.5, (0.0, 0.5, 0.5)),
+        C,
+        "offsets must be 4 phases in [0, 1)",
+    ),
+    (
+        "named",
+        "gait offset 1.0",
+        lambda: Gait("g", 0.8, 0.5, (0.0, 0.5, 0.5, 1.0)),
+        C,
+        "offsets must be 4 phases",
+    ),
+    (
+        "named",
+        "gait offset NaN",
+        lambda: Gait("g", 0.8, 0.5, (0.0, 0.5, 0.5, NAN)),
+        C,
+        "offsets must be 4 phases",
+    ),
+    (
+        "unclear",
+        "gait offsets words",
+        lambda: Gait("g", 0.8, 0.5, ("a", "b", "c", "d")),
+        C,
+        "offsets must be 4 phases",
+    ),
+    (
+        "named",
+        "gait period NaN",
+        lambda: Gait("g", NAN, 0.5, (0.0, 0.5, 0.5, 0.0)),
+        C,
+        "period must be finite and > 0",
+    ),
+    (
+        "named",
+        "gait swing fraction 1",
+        lambda: Gait("g", 0.8, 1.0, (0.0, 0.5, 0.5, 0.0)),
+        C,
+        "swing_fraction must be in [0, 1)",
+    ),
+    (
+        "named",
+        "gait period off tick",
+        lambda: make_gait("trot", 0.80025),
+        C,
+        "not a multiple of the schedule tick",
+    ),
+    ("named", "unknown gait", lambda: make_gait("gallop"), C, "unknown gait 'gallop'"),
+    ("named", "schedule empty", lambda: GaitSchedule([]), C, "GaitSchedule needs at least one"),
+    (
+        "named",
+        "schedule duration NaN",
+        lambda: GaitSchedule([(make_gait("stand"), NAN)]),
+        C,
+        "segment 0 (stand) duration must be finite",
+    ),
+    (
+        "named",
+        "schedule duration < 0",
+        lambda: GaitSchedule([(make_gait("stand"), -1.0)]),
+        C,
+        "segment 0 (stand) duration",
+    ),
+    (
+        "named",
+        "schedule item a name",
+        lambda: GaitSchedule([("trot", 2.0)]),
+        C,
+        "segment 0: 'trot' is not a Gait",
+    ),
+    (
+        "named",
+        "schedule item single",
+        lambda: GaitSchedule([make_gait("trot")]),
+        C,
+        "segment 0 must be a (gait, duration) pair",
+    ),
+    (
+        "named",
+        "schedule string duration",
+        lambda: parse_gait_schedule("stand:two"),
+        C,
+        "duration 'two' is not a number",
+    ),
+    ("named", "schedule t NaN", lambda: make_gait("trot").contact(NAN), C, "t must be finite"),
+    # --- arm reference, low level, sensing, estimation, statics -----------------------------------------
+    ("unclear", "arm period NaN", lambda: ArmReference(period=NAN), C, "ArmReference.period"),
+    ("named", "arm period 0", lambda: ArmReference(period=0.0), C, "ArmReference.period"),
+    (
+        "silent",
+        "arm amplitude NaN",
+        lambda: ArmReference(amplitude=(0.05, NAN, 0.15)),
+        C,
+        "ArmReference.amplitude",
+    ),
+    (
+        "unclear",
+        "arm amplitude two",
+        lambda: ArmReference(amplitude=(0.05, 0.15)),
+        C,
+        "ArmReference.amplitude",
+    ),
+    ("silent", "arm phase inf", lambda: ArmReference(phase=(0.0, INF, 0.0)), C, "ArmReference.phase"),
+    ("silent", "arm center NaN", lambda: ArmReference(center=(0.5, NAN, 0.4)), C, "ArmReference.center"),
+    ("silent", "arm ramp < 0", lambda: ArmReference(ramp=-1.0), C, "ArmReference.ramp"),
+    ("silent", "low level kp < 0", lambda: LowLevelController(kp=-1.0), C, "kp must be finite gains >= 0"),
+    (
+        "silent",
+        "low level kd NaN",
+        lambda: LowLevelController(kd=np.array([1.0, NAN])),
+        C,
+        "kd must be finite gains",
+    ),
+    (
+        "named",
+        "sensor noise < 0",
+        lambda: SensorNoise(joint_position=-0.01),
+        C,
+        "SensorNoise.joint_position must be",
+    ),
+    ("named", "sensor noise NaN", lambda: SensorNoise(base_velocity=NAN), C, "SensorNoise.base_velocity"),
+    (
+        "unclear",
+        "sensor noise string",
+        lambda: SensorNoise(joint_velocity="0.1"),
+        C,
+        "SensorNoise.joint_velocity",
+    ),
+    (
+        "unclear",
+        "sensor seed < 0",
+        lambda: SensorNoise(seed=-1),
+        C,
+        "SensorNoise.seed must be an integer >= 0",
+    ),
+    ("unclear", "sensor seed float", lambda: SensorNoise(seed=0.5), C, "SensorNoise.seed"),
+    ("named", "filter cutoff 0", lambda: LowPassFilter(0.0, 0.002), C, "cutoff_hz must be > 0"),
+    ("named", "filter dt 0", lambda: LowPassFilter(50.0, 0.0), C, "dt must be > 0"),
+    (
+        "named",
+        "estimator noise < 0",
+        lambda: EstimatorNoise(gyro=-0.1),
+        C,
+        "EstimatorNoise.gyro must be finite and >= 0",
+    ),
+    ("named", "estimator noise NaN", lambda: EstimatorNoise(foot_slip=NAN), C, "EstimatorNoise.foot_slip"),
+    (
+        "named",
+        "estimator noise 0",
+        lambda: EstimatorNoise(foot_position=0.0),
+        C,
+        "EstimatorNoise.foot_position must be > 0",
+    ),
+    ("named", "estimator dt 0", lambda: _estimator(dt=0.0), C, "dt must be > 0"),
+    ("named", "estimator dt NaN", lambda: _estimator(dt=NAN), C, "dt must be > 0"),
+    (
+        "named",
+        "estimator cutoff < 0",
+        lambda: _estimator(velocity_cutoff_hz=-50.0),
+        C,
+        "cutoff_hz must be > 0",
+    ),
+    ("named", "estimator reset NaN", lambda: _estimator().reset(np.full(26, NAN), np.zeros(22)), C, "q0"),
+    (
+        "named",
+        "statics no stance foot",
+        lambda: _statics([False] * 4),
+        C,
+        "contact: at least one foot must be in contact",
+    ),
+    ("named", "statics three flags", lambda: _statics([True] * 3), C, "contact must be 4 booleans"),
+    (
+        "named",
+        "statics ee force NaN",
+        lambda: _statics([True] * 4, ee_force=(0, NAN, 0)),
+        C,
+        "ee_force must be finite",
+    ),
+    ("named", "statics weight 1", lambda: _statics([True] * 4, weight=1.0), C, "weight must be in (0, 1)"),
+    # --- rosbag topic map -------------------------------------------------------------------------------
+    (
+        "named",
+        "topic map no joint states",
+        lambda: TopicMap(joint_states=None),
+        C,
+        "TopicMap.joint_states cannot be None",
+    ),
+    (
+        "silent",
+        "topic without slash",
+        lambda: TopicMap(imu="imu"),
+        C,
+        "TopicMap.imu must be a topic name starting with '/'",
+    ),
+    ("silent", "topic a number", lambda: TopicMap(odometry=5), C, "TopicMap.odometry must be a topic name"),
+    ("silent", "topic with a space", lambda: TopicMap(meta="/wbmpc meta"), C, "TopicMap.meta"),
+    (
+        "named",
+        "foot topic no template",
+        lambda: TopicMap(foot_forces="/feet/force"),
+        C,
+        "TopicMap.foot_forces must contain '{foot}'",
+    ),
+    (
+        "unclear",
+        "required a string",
+        lambda: TopicMap(required="imu"),
+        C,
+        "TopicMap.required must be a list of names",
+    ),
+    (
+        "named",
+        "required unknown",
+        lambda: TopicMap(required=["lidar"]),
+        C,
+        "TopicMap.required names unknown fields ['lidar']",
+    ),
+    ("silent", "required but None", lambda: TopicMap(imu=None), C, "TopicMap.required lists ['imu']"),
+    (
+        "silent",
+        "foot names repeated",
+        lambda: TopicMap(foot_names=["FL", "FL", "RL", "RR"]),
+        C,
+        "TopicMap.foot_names names ['FL'] more than once",
+    ),
+    (
+        "silent",
+        "foot names empty",
+        lambda: TopicMap(foot_names=[]),
+        C,
+        "TopicMap.foot_names must hold at least 1",
+    ),
+    (
+        "unclear",
+        "joint names a string",
+        lambda: TopicMap(joint_names="FL_hip_joint"),
+        C,
+        "TopicMap.joint_names must be a list of names",
+    ),
+    (
+        "silent",
+        "joint name map a list",
+        lambda: TopicMap(joint_name_map=["a", "b"]),
+        C,
+        "TopicMap.joint_name_map must map",
+    ),
+    (
+        "silent",
+        "ignore joints ints",
+        lambda: TopicMap(ignore_joints=[1, 2]),
+        C,
+        "TopicMap.ignore_joints must hold names",
+    ),
+    (
+        "silent",
+        "frame id empty",
+        lambda: TopicMap(base_frame=""),
+        C,
+        "TopicMap.base_frame must be a non-empty frame id",
+    ),
+    (
+        "named",
+        "gap factor 1",
+        lambda: TopicMap(max_gap_factor=1.0),
+        C,
+        "TopicMap.max_gap_factor must be a finite number > 1",
+    ),
+    ("named", "gap factor NaN", lambda: TopicMap(max_gap_factor=NAN), C, "TopicMap.max_gap_factor"),
+    (
+        "named",
+        "unknown topic map key",
+        lambda: TopicMap.from_dict({"lidar": "/scan"}),
+        C,
+        "unknown TopicMap keys ['lidar']",
+    ),
+    (
+        "unclear",
+        "topic map bad JSON",
+        lambda: TopicMap.from_json('{"imu": }'),
+        C,
+        "TopicMap JSON: the JSON string is not valid JSON",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    "kind, call, error, message",
+    [(c[0], c[2], c[3], c[4]) for c in CATALOGUE],
+    ids=[f"{c[0]}: {c[1]}" for c in CATALOGUE],
+)
+def test_catalogue(kind, call, error, message):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(error) as err:
+            call()
+    assert message in str(err.value), f"{kind}: {err.value}"
+    assert err.type is error or issubclass(err.type, error)
+
+
+# --- warned, not refused: the input can be right, the message says what to check and how to fix it ----------
+def test_the_srdf_of_another_robot_is_warned():
+    """b1.srdf on the B1 + Z1 URDF: every arm joint would silently be 0 in the reference pose."""
+    with pytest.warns(UserWarning, match=r"the SRDF's joints do not match the URDF's: .*'joint1'"):
+        _robot(srdf=B1_SRDF, reference_pose="standing", locked_joints=())
+
+
+def test_a_disturbance_after_the_end_of_the_run_is_warned():
+    with pytest.warns(UserWarning, match="after the end of the run"):
+        _pb_loop(duration=1.0, disturbances=(Kick(2.0, (0, 1, 0)),))
+
+
+def test_valid_inputs_still_pass_without_warnings():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _pb_loop(
+            duration=1.0,
+            kp=30.0,
+            arm_gains=(5.0, 0.5),
+            delay=0.0125,
+            disturbances=(Kick(0.5, (0, 1, 0)), Push(0.2, 0.1, (10, 0, 0, 0, 0, 1))),
+            scene=[
+                Payload(2.0, (1, 0, 0.05), attach="tether"),
+                Wall((1, 0, 0.5), (-1, 0, 0)),
+                Box((1, 1, 1), (2, 0, 0.5)),
+            ],
+        ).steps()
+        _b1z1()
+        load("b1")
+        Commands(base_height=0.5).validated()
+        TopicMap(required=["joint_states"], imu=None)
+        SwingParams(height=0.1, v_liftoff=0.0, v_touchdown=0.0)
+        ArmReference(center=(0.5, 0.0, 0.4), ramp=0.0)
+
+
+# --- command lines: refused before any work, exit status 2, a one-line reason -------------------------------
+def _cli(module: str):
+    import importlib
+
+    return importlib.import_module(f"wbmpc.studies.{module}").main
+
+
+CLI_CASES = [
+    ("demo", ["--nodes", "1000"], "--nodes must be <= 100"),
+    ("demo", ["--nodes", "0"], "--nodes must be"),
+    ("demo", ["--duration", "-1"], "--duration must be"),
+    ("bench", ["--steps", "0"], "--steps must be an integer >= 1"),
+    ("bench", ["--steps", "-5"], "--steps must be an integer >= 1"),
+    ("bench", ["--warmup", "-1"], "--warmup must be an integer >= 0"),
+    ("bench", ["--batch", "0"], "--batch must be an integer >= 1"),
+    ("bench", ["--case", "fatrop,compiled,0"], "--case NODES must be an integer in [3, 100]"),
+    ("bench", ["--case", "fatrop,compiled,500"], "--case NODES must be an integer in [3, 100]"),
+    ("bench", ["--case", "snopt,compiled,15"], "expected SOLVER,MODE,NODES"),
+    (
+        "bench",
+        ["--output", "/proc/bench.json"],
+        "--output /proc/bench.json: its folder /proc is not a writable folder",
+    ),
+    ("bench", ["--output", "/tmp"], "--output /tmp is a folder"),
+    ("bench", ["--steps", "ten"], "invalid int value: 'ten'"),
+    ("table1", ["--steps", "0"], "--steps must be an integer >= 1"),
+    ("table1", ["--steps", "-1"], "--steps must be an integer >= 1"),
+    ("table1", ["--warmup", "-3"], "--warmup must be an integer >= 0"),
+    ("table1", ["--nodes", "0"], "--nodes must be an integer in [3, 100]"),
+    ("table1", ["--nodes", "2"], "--nodes must be an integer in [3, 100]"),
+    ("table1", ["--nodes", "1000"], "--nodes must be an integer in [3, 100]"),
+    ("table1", ["--kp", "-1"], "--kp must be a finite number >= 0"),
+    ("table1", ["--kd", "nan"], "--kd must be a finite number >= 0"),
+    (
+        "table1",
+        ["--output", "/proc/t.csv"],
+        "--output /proc/t.csv: its folder /proc is not a writable folder",
+    ),
+    ("table1", ["--formulations", "magic"], "invalid choice: 'magic'"),
+    ("experiments", ["kicks"], "unknown experiments ['kicks']"),
+    ("experiments", ["arm_tracking", "wipe"], "unknown experiments ['wipe']"),
+]
+
+
+@pytest.mark.parametrize(
+    "module, argv, message", CLI_CASES, ids=[f"{m} {' '.join(a)}" for m, a, _ in CLI_CASES]
+)
+def test_command_lines(module, argv, message, capsys, monkeypatch):
+    main = _cli(module)
+    started = []
+    monkeypatch.setattr("wbmpc.model.robot.load_b1_z1", lambda *a, **k: started.append(1))  # no work
+    with pytest.raises(SystemExit) as exit_info:
+        main([*argv, "--quiet"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert message in err[-1], err
+    assert not started
+
+
+def test_cli_node_bound_matches_the_ocp():
+    from wbmpc.ocp.builder import MAX_NODES
+    from wbmpc.studies import cli_checks
+
+    assert cli_checks.MAX_NODES == MAX_NODES

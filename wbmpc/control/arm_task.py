@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
+from wbmpc import checks
 from wbmpc.control.mpc import heading
 
 
@@ -42,8 +43,12 @@ class ArmReference:
     ramp: float = 1.0
 
     def __post_init__(self):
-        if self.period <= 0 or not np.isfinite(self.period):
-            raise ValueError(f"ArmReference period must be > 0, got {self.period}")
+        checks.number("ArmReference.period", self.period, low=0.0, low_open=True, unit="s")
+        checks.number("ArmReference.ramp", self.ramp, low=0.0, unit="s")
+        if self.center is not None:
+            checks.vector("ArmReference.center", self.center, 3, unit="m")
+        checks.vector("ArmReference.amplitude", self.amplitude, 3, unit="m")
+        checks.vector("ArmReference.phase", self.phase, 3, unit="rad")
 
     def centered_at(self, q: np.ndarray, ee_position: np.ndarray) -> ArmReference:
         """This reference with its centre at a world position, expressed in the heading frame of ``q``."""

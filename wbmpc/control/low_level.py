@@ -45,6 +45,13 @@ class LowLevelController:
     """
 
     def __init__(self, kp=0.0, kd=0.0, torque_limits: np.ndarray | None = None):
+        for name, gain in (("kp", kp), ("kd", kd)):
+            try:
+                values = np.asarray(gain, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{name} must be a gain >= 0 or an array of them, got {gain!r}") from None
+            if values.ndim > 1 or not np.all(np.isfinite(values)) or np.any(values < 0):
+                raise ValueError(f"{name} must be finite gains >= 0 (scalar or (nj,)), got {gain!r}")
         self.kp, self.kd = kp, kd
         self.torque_limits = torque_limits
         self.plan: MPCSolution | None = None

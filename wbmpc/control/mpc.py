@@ -16,11 +16,13 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
+from wbmpc import checks
 from wbmpc.control.diagnostics import exception_status, run_prechecks, solver_status
 from wbmpc.model.robot import Robot
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import (
+    FOOT_NAMES,
     Gait,
     GaitSchedule,
     SwingParams,
@@ -99,6 +101,10 @@ class Commands:
             if not np.all(np.isfinite(value)):
                 raise ValueError(f"command {name} contains NaN or inf: {value}")
             out[name] = value
+        if self.base_height is not None:
+            out["base_height"] = checks.number(
+                "command base_height", self.base_height, low=0.0, high=5.0, low_open=True, unit="m"
+            )
         return replace(self, **out)
 
 
@@ -126,6 +132,14 @@ class MPCConfig:
         cold_retry: After a failed warm-started solve, retry once from a cold start (same tick) before
             falling back to the previous plan.
         retry_max_iter: Iteration cap of that retry.
+        kick_recovery: Swing abort after a push [m/s]: when the measured horizontal base velocity differs
+            from the command by more than this, a swing in its first ``kick_recovery_phase`` is aborted: the
+            foot is brought down at ``touchdown_speed`` (at least ``touchdown_time``) and planned in stance
+            until its nominal touchdown. A trot otherwise leaves one diagonal pair on the ground for a whole
+            swing, over which the base behaves like an inverted pendulum on a line and cannot be slowed
+            across it. ``None`` disables it.
+        kick_recovery_phase: Swing phase (fraction of the swing) below which a swing is aborted.
+        touchdown_speed: Downward foot speed [m/s] of an aborted swing; touchdown_time: its minimum [s].
     """
 
     gait: Gait | GaitSchedule = field(default_factory=lambda: make_gait("trot", 0.8))
@@ -147,6 +161,10 @@ class MPCConfig:
     compile_flags: tuple[str, ...] = ("-O1",)
     cold_retry: bool = True
     retry_max_iter: int = 100
+    kick_recovery: float | None = 0.3
+    kick_recovery_phase: float = 0.3
+    touchdown_speed: float = 0.3
+    touchdown_time: float = 0.03
 
     def __post_init__(self):
         for name in ("dt_min", "dt_max", "mu", "tol", "mu_init_warm", "mu_init_cold"):
@@ -159,6 +177,12 @@ class MPCConfig:
                     f"MPCConfig.{name} = {getattr(self, name)} s is outside "
                     f"[{DT_BOUNDS[0]}, {DT_BOUNDS[1]}] s (the paper's steps: 0.01 to 0.1 s)"
                 )
+        for name in ("touchdown_speed", "touchdown_time", "kick_recovery_phase") + (
+            ("kick_recovery",) if self.kick_recovery is not None else ()
+        ):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not value > 0:
+                raise ValueError(f"MPCConfig.{name} must be a positive number, got {value!r}")
         for name in ("max_iter", "cold_max_iter", "retry_max_iter"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
@@ -185,6 +209,9 @@ class MPCConfig:
             raise ValueError(
                 f"MPCConfig.gait must be a Gait or GaitSchedule (see wbmpc.ocp.gait), got {self.gait!r}"
             )
+        if not isinstance(self.swing, SwingParams):
+            raise ValueError(f"MPCConfig.swing must be a SwingParams (wbmpc.ocp.gait), got {self.swing!r}")
+        checks.names("MPCConfig.compile_flags", self.compile_flags, unique=False)
 
 
 @dataclass
@@ -246,6 +273,18 @@ class WholeBodyMPC:
     """
 
     def __init__(self, robot: Robot, settings: OCPSettings | None = None, config: MPCConfig | None = None):
+        if not isinstance(robot, Robot):
+            raise ValueError(f"robot must be a wbmpc.model.robot.Robot (see load_robot), got {robot!r}")
+        if robot.n_feet != len(FOOT_NAMES):
+            raise ValueError(
+                f"robot {robot.name!r} has {robot.n_feet} foot frames {list(robot.foot_frames)}; the MPC's "
+                f"gaits schedule 4 feet in the order {FOOT_NAMES} (front-left, front-right, rear-left, "
+                "rear-right): give load_robot four foot_frames"
+            )
+        if settings is not None and not isinstance(settings, OCPSettings):
+            raise ValueError(f"settings must be an OCPSettings, got {settings!r}")
+        if config is not None and not isinstance(config, MPCConfig):
+            raise ValueError(f"config must be an MPCConfig, got {config!r}")
         self.robot = robot
         self.config = config or MPCConfig()
         self.ocp = OCP(robot, settings)
@@ -253,6 +292,8 @@ class WholeBodyMPC:
         self._solvers = {}
         self.previous: MPCSolution | None = None
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0, "holds": 0}
+        self.stats["swing_aborts"] = 0
+        self.aborted_swings: dict[int, float] = {}  # foot -> nominal touchdown time [s] of an aborted swing
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.last_inputs: dict | None = None
@@ -458,6 +499,9 @@ class WholeBodyMPC:
                 end-effector force the stance feet cannot balance (bad input, not a solver failure).
         """
         start = time.perf_counter()
+        t = checks.number("t", t, unit="s")
+        if commands is not None and not isinstance(commands, Commands):
+            raise ValueError(f"commands must be a Commands (wbmpc.control.mpc) or None, got {commands!r}")
         q_hat = _checked("q_hat", q_hat, self.robot.nq)
         v_hat = _checked("v_hat", v_hat, self.robot.nv)
         q_hat = q_hat.copy()
@@ -476,6 +520,7 @@ class WholeBodyMPC:
             if finding.code in REFUSED_FINDINGS:
                 raise ValueError(f"command refused: {finding.message}")
         params = self.parameters(q_hat, v_hat, t, commands)
+        params = self.recovery_parameters(params, q_hat, v_hat, t, commands)  # swings aborted after a push
         p = self.ocp.params.pack(params)
         # self.previous is always the last converged plan (fallbacks are not stored).
         cold = not warm_start or self.previous is None
@@ -613,8 +658,49 @@ class WholeBodyMPC:
         )
 
     def reset(self) -> None:
-        """Forget the previous plan (the next solve is a cold start)."""
+        """Forget the previous plan (the next solve is a cold start) and any aborted swing."""
         self.previous = None
+        self.aborted_swings = {}
+
+    def recovery_parameters(
+        self, params: dict, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands: Commands
+    ) -> dict:
+        """The stage parameters with aborted swings (``MPCConfig.kick_recovery``): feet brought down and
+        planned in stance until their nominal touchdown; ``params`` unchanged when no swing is aborted."""
+        cfg, robot = self.config, self.robot
+        if cfg.kick_recovery is None and not self.aborted_swings:
+            return params
+        self.aborted_swings = {i: end for i, end in self.aborted_swings.items() if t < end - 1e-9}
+        if cfg.kick_recovery is not None:
+            now = cfg.gait.sample(np.array([t]))
+            R_base = pin.Quaternion(q_hat[3:7]).normalized().toRotationMatrix()
+            R_heading = pin.rpy.rpyToMatrix(0.0, 0.0, heading(q_hat))
+            error = (R_base @ v_hat[0:3] - R_heading @ commands.base_linear_velocity)[0:2]
+            if np.linalg.norm(error) > cfg.kick_recovery:
+                for i in range(robot.n_feet):
+                    phase = now.swing_phase[i, 0]
+                    early = not now.contact[i, 0] and phase < cfg.kick_recovery_phase
+                    if early and i not in self.aborted_swings:
+                        self.aborted_swings[i] = t + (1.0 - phase) * now.swing_duration[i, 0]
+                        self.stats["swing_aborts"] += 1
+        if not self.aborted_swings:
+            return params
+        t_nodes = node_times(self.time_steps(), t)[:-1]
+        contact = params["contact"] > 0.5
+        swing_vz = np.array(params["swing_vz"], dtype=float)
+        data = robot.model.createData()
+        pin.framesForwardKinematics(robot.model, data, q_hat)
+        for i, end in self.aborted_swings.items():
+            height = data.oMf[robot.frame_id(robot.foot_frames[i])].translation[2] - robot.foot_radius
+            landing = t + max(cfg.touchdown_time, height / cfg.touchdown_speed) if height > 2e-3 else t
+            down = (t_nodes < landing - 1e-9) & (t_nodes < end - 1e-9)
+            stance = (t_nodes >= landing - 1e-9) & (t_nodes < end - 1e-9)
+            contact[i, down], swing_vz[i, down] = False, -max(height, 0.0) / max(landing - t, 1e-3)
+            contact[i, stance], swing_vz[i, stance] = True, 0.0
+        ratio = robot.front_force_ratio if cfg.front_force_ratio is None else cfg.front_force_ratio
+        weight = robot.mass * robot.gravity - commands.ee_force[2]
+        force_des = default_force_distribution(contact, weight / robot.gravity, robot.gravity, ratio)
+        return {**params, "contact": contact.astype(float), "swing_vz": swing_vz, "force_des": force_des}
 
 
 def solver_timings(stats: dict, wall: float) -> dict:

@@ -72,7 +72,7 @@ ROS package):
 * ``wbmpc_msgs/msg/SolveDiagnostics``: ``std_msgs/Header header`` (stamp: the solve's measurement time),
   ``builtin_interfaces/Time apply_stamp`` (when the plan reached the low level), ``float64 solve_time`` [s],
   ``int32 iterations``, ``bool success``, ``bool fallback``, ``bool hold``, ``float64 constraint_violation``,
-  ``string status``.
+  ``string status``, ``string reason``.
 * ``wbmpc_msgs/msg/PlanPreview``: ``header``, ``uint32 n_nodes``, ``float64[] q`` (``n_nodes x nq``
   row-major), ``float64[] v`` (``n_nodes x nv``), ``float64[] tau`` (first stage, ``nj``) [N m],
   ``float64[] forces`` (first stage, ``n_contacts x 3``, world) [N], ``bool[] contact`` (first stage, per
@@ -112,6 +112,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wbmpc import checks
 from wbmpc.io.logs import RunLog, json_default, load_log, save_log
 
 __all__ = [
@@ -142,7 +143,8 @@ bool success                         # the solver converged
 bool fallback                        # the previous plan was kept (solve failed)
 bool hold                            # the static hold was applied (no converged plan existed yet)
 float64 constraint_violation         # max constraint violation of the plan
-string status                        # solver message
+string status                        # named solver status (wbmpc.control.diagnostics.solver_status)
+string reason                        # why the solve failed (empty on success)
 """,
     "wbmpc_msgs/msg/PlanPreview": """\
 # The first nodes of one MPC plan; arrays flattened row-major.
@@ -220,6 +222,27 @@ class TimeGapError(RosbagError):
 
 
 # ---------------------------------------------------------------------------------------------- topic map
+_TOPIC_FIELDS = (
+    "joint_states",
+    "joint_states_measured",
+    "joint_feedforward",
+    "imu",
+    "odometry",
+    "ground_truth",
+    "foot_forces",
+    "feet_contact",
+    "ee_position",
+    "ee_reference",
+    "ee_force",
+    "base_velocity_cmd",
+    "ee_force_cmd",
+    "diagnostics",
+    "plan_preview",
+    "meta",
+    "extra_prefix",
+)
+
+
 @dataclass
 class TopicMap:
     """Topic names, joint order and frame ids of a robot's bags (a lab edits it for its robot).
@@ -282,13 +305,39 @@ class TopicMap:
     def __post_init__(self):
         if self.joint_states is None:
             raise ValueError("TopicMap.joint_states cannot be None: joint states give the log's time base")
+        for name in _TOPIC_FIELDS:
+            topic = getattr(self, name)
+            if topic is not None and (
+                not isinstance(topic, str) or not topic.startswith("/") or " " in topic
+            ):
+                raise ValueError(
+                    f"TopicMap.{name} must be a topic name starting with '/' (no spaces) or None, "
+                    f"got {topic!r}"
+                )
         if self.foot_forces is not None and "{foot}" not in self.foot_forces:
             raise ValueError(f"TopicMap.foot_forces must contain '{{foot}}', got {self.foot_forces!r}")
+        for name in ("world_frame", "base_frame", "imu_frame", "heading_frame"):
+            frame = getattr(self, name)
+            if not isinstance(frame, str) or not frame.strip():
+                raise ValueError(f"TopicMap.{name} must be a non-empty frame id, got {frame!r}")
+        if self.joint_names is not None:
+            checks.names("TopicMap.joint_names", self.joint_names, min_count=1)
+        checks.names("TopicMap.ignore_joints", self.ignore_joints)
+        checks.names("TopicMap.foot_names", self.foot_names, min_count=1)
+        if not isinstance(self.joint_name_map, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in self.joint_name_map.items()
+        ):
+            raise ValueError(
+                f"TopicMap.joint_name_map must map bag joint names to model joint names (str -> str), "
+                f"got {self.joint_name_map!r}"
+            )
         known = {f.name for f in fields(self)}
+        checks.names("TopicMap.required", self.required)
         if bad := [r for r in self.required if r not in known]:
             raise ValueError(f"TopicMap.required names unknown fields {bad}; fields: {sorted(known)}")
-        if not (np.isfinite(self.max_gap_factor) and self.max_gap_factor > 1):
-            raise ValueError(f"TopicMap.max_gap_factor must be > 1, got {self.max_gap_factor}")
+        if off := [r for r in self.required if r in known and getattr(self, r) is None]:
+            raise ValueError(f"TopicMap.required lists {off}, whose topics are set to None")
+        checks.number("TopicMap.max_gap_factor", self.max_gap_factor, low=1.0, low_open=True)
 
     @classmethod
     def from_dict(cls, data: dict) -> TopicMap:
@@ -308,7 +357,11 @@ class TopicMap:
         text = str(source)
         if not text.lstrip().startswith("{"):
             text = Path(source).read_text()
-        data = json.loads(text)
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            where = "the JSON string" if text is str(source) else str(source)
+            raise ValueError(f"TopicMap JSON: {where} is not valid JSON ({exc})") from None
         if not isinstance(data, dict):
             raise ValueError(f"a TopicMap JSON must be an object, got {type(data).__name__}")
         return cls.from_dict(data)
@@ -540,6 +593,7 @@ def write_bag(
                 "hold",
                 "violation",
                 "status",
+                "reason",
             }
         if tm.plan_preview and any(k in solves for k in ("plan_q", "plan_v", "plan_tau", "plan_forces")):
             add(tm.plan_preview, _PLAN, _plan_preview(m, solve_stamps, tm, solves))
@@ -745,11 +799,12 @@ def _diagnostics(m: _Msgs, stamps, start_ns: int, tm: TopicMap, s):
         col("iterations", -1),
         col("violation", np.nan),
     )
-    success, fallback, hold, status = (
+    success, fallback, hold, status, reason = (
         col("success", False),
         col("fallback", False),
         col("hold", False),
         col("status", ""),
+        col("reason", ""),
     )
     out = []
     for k, ns in enumerate(stamps):
@@ -767,6 +822,7 @@ def _diagnostics(m: _Msgs, stamps, start_ns: int, tm: TopicMap, s):
                     hold=bool(hold[k]),
                     constraint_violation=float(violation[k]),
                     status=str(status[k]),
+                    reason=str(reason[k]),
                 ),
             )
         )
@@ -1069,6 +1125,7 @@ def _solves(tm: TopicMap, messages: dict, start_ns: int) -> dict[str, np.ndarray
         solves["fallback"] = np.array([x.fallback for x in msgs], bool)
         solves["violation"] = np.array([x.constraint_violation for x in msgs], float)
         solves["status"] = np.asarray([x.status for x in msgs], dtype=str)
+        solves["reason"] = np.asarray([x.reason for x in msgs], dtype=str)
         solves["hold"] = np.array([x.hold for x in msgs], bool)
     if plan:
         plan_t = (np.array([ns for ns, _ in plan], np.int64) - start_ns) * 1e-9

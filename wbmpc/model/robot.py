@@ -18,6 +18,8 @@ Example:
 
 from __future__ import annotations
 
+import difflib
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -26,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+
+from wbmpc import checks
 
 FOOT_NAMES = ("FL", "FR", "RL", "RR")
 UNITREE_FOOT_FRAMES = tuple(f"{name}_foot" for name in FOOT_NAMES)
@@ -301,29 +305,60 @@ def load_robot(
       to them) needs a positive mass and a positive-definite rotational inertia, else its dynamics are
       singular.
     """
+    for label, path in (("urdf", urdf), ("srdf", srdf)):
+        if path is not None and not isinstance(path, str | Path):
+            raise RobotModelError(f"{label} must be a file path (str or Path), got {path!r}")
     urdf = Path(urdf)
     if not urdf.is_file():
         raise RobotModelError(f"URDF file not found: {urdf}")
     if srdf is not None and not Path(srdf).is_file():
         raise RobotModelError(f"SRDF file not found: {srdf}")
-    if not foot_frames:
-        raise RobotModelError("foot_frames must name at least one foot frame")
-    if not 0.0 < front_force_ratio < 1.0:
-        raise RobotModelError(f"front_force_ratio must be in (0, 1), got {front_force_ratio}")
+    try:
+        foot_frames = checks.names("foot_frames", foot_frames, min_count=1)
+        locked_joints = checks.names("locked_joints", locked_joints)
+    except ValueError as exc:
+        raise RobotModelError(str(exc)) from None
+    for label, value in (("ee_frame", ee_frame), ("reference_pose", reference_pose), ("name", name)):
+        if value is not None and not isinstance(value, str):
+            raise RobotModelError(f"{label} must be a name (str) or None, got {value!r}")
+    if ee_frame in foot_frames:
+        raise RobotModelError(f"ee_frame {ee_frame!r} is also one of the foot_frames {list(foot_frames)}")
+    try:
+        checks.number(
+            "front_force_ratio", front_force_ratio, low=0.0, high=1.0, low_open=True, high_open=True
+        )
+        if foot_radius is not None:
+            checks.number("foot_radius", foot_radius, low=0.0, high=1.0, unit="m")
+    except ValueError as exc:
+        raise RobotModelError(str(exc)) from None
     urdf_root = _parse_xml(urdf)
     inertials = _read_inertials(urdf, urdf_root)  # malformed or missing inertials: raised before Pinocchio
     full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
 
-    for frame_name, (parent, offset) in (extra_frames or {}).items():
+    for frame_name, spec in (extra_frames or {}).items():
+        try:
+            parent, offset = spec
+            offset = checks.vector(f"extra_frames[{frame_name!r}] offset", offset, 3, unit="m")
+        except (TypeError, ValueError) as exc:
+            raise RobotModelError(
+                f"extra_frames[{frame_name!r}] must be (parent_frame, (x, y, z)), got {spec!r}: {exc}"
+            ) from None
         parent_frame = full.frames[_frame_id(full, parent)]
-        placement = parent_frame.placement * pin.SE3(np.eye(3), np.asarray(offset, dtype=float))
+        placement = parent_frame.placement * pin.SE3(np.eye(3), offset)
         full.addFrame(pin.Frame(frame_name, parent_frame.parentJoint, placement, pin.FrameType.OP_FRAME))
 
-    poses_full = _reference_poses(full, srdf)
+    poses_full = _reference_poses(full, srdf, urdf)
     if q_reference is not None:
-        q_reference = np.asarray(q_reference, dtype=float)
+        try:
+            q_reference = np.asarray(q_reference, dtype=float)
+        except (TypeError, ValueError):
+            raise RobotModelError(f"q_reference must be {full.nq} numbers, got {q_reference!r}") from None
         if q_reference.shape != (full.nq,):
             raise RobotModelError(f"q_reference must have shape ({full.nq},), got {q_reference.shape}")
+        if not np.all(np.isfinite(q_reference)):
+            raise RobotModelError(f"q_reference must be finite (no NaN or inf), got {q_reference}")
+        if np.linalg.norm(q_reference[3:7]) < 1e-9:
+            raise RobotModelError("q_reference[3:7] is the base quaternion (x, y, z, w) and must not be zero")
         poses_full["reference"] = q_reference
         reference_pose = reference_pose or "reference"
     if not poses_full:
@@ -336,11 +371,23 @@ def load_robot(
     for pose_name, overrides in (extra_poses or {}).items():
         q = poses_full[reference_pose].copy()
         for joint, value in overrides.items():
+            try:
+                value = checks.number(f"extra_poses[{pose_name!r}][{joint!r}]", value, unit="rad")
+            except ValueError as exc:
+                raise RobotModelError(str(exc)) from None
             q[full.joints[_joint_id(full, joint)].idx_q] = value
         poses_full[pose_name] = q
+    for pose_name, q in poses_full.items():
+        if not np.all(np.isfinite(q)):
+            bad = [
+                full.names[j] for j in range(1, full.njoints) if not np.all(np.isfinite(q[full.idx_qs[j]]))
+            ]
+            raise RobotModelError(f"reference pose {pose_name!r} has NaN or inf values at joints {bad}")
 
     q_lock = poses_full[reference_pose]
     lock_ids = [_joint_id(full, joint) for joint in locked_joints]
+    if srdf is not None and reference_pose != "reference":
+        _check_pose_covers_joints(full, srdf, urdf, reference_pose, locked_joints)
     locked = {jn: float(q_lock[full.idx_qs[jid]]) for jn, jid in zip(locked_joints, lock_ids, strict=True)}
     model = pin.buildReducedModel(full, lock_ids, q_lock) if lock_ids else full
     model.name = name or urdf.stem
@@ -386,12 +433,22 @@ def place_feet_on_ground(
 
 # --- helpers ---------------------------------------------------------------------------------------------
 def _frame_id(model: pin.Model, name: str) -> int:
+    if not isinstance(name, str):
+        raise RobotModelError(f"frames are given by name (str), got {name!r}")
     if not model.existFrame(name):
-        raise RobotModelError(f"unknown frame {name!r} in model {model.name!r}")
+        known = list(dict.fromkeys(frame.name for frame in model.frames))
+        close = difflib.get_close_matches(name, known, n=3)
+        hint = f" (did you mean {close}?)" if close else ""
+        raise RobotModelError(f"unknown frame {name!r} in model {model.name!r}{hint}; frames: {known}")
     return model.getFrameId(name)
 
 
 def _joint_id(model: pin.Model, name: str) -> int:
+    if not isinstance(name, str):
+        names = [model.names[i] for i in range(1, model.njoints)]
+        raise RobotModelError(
+            f"joints are given by name (str), got {name!r}; joints of {model.name!r}: {names}"
+        )
     if not model.existJointName(name):
         names = [model.names[i] for i in range(1, model.njoints)]
         raise RobotModelError(f"unknown joint {name!r}; joints of {model.name!r}: {names}")
@@ -405,16 +462,26 @@ def _parse_xml(path: Path) -> ET.Element:
         raise RobotModelError(f"{path} is not valid XML: {exc}") from exc
 
 
-def _reference_poses(model: pin.Model, srdf: str | Path | None) -> dict[str, np.ndarray]:
+def _reference_poses(model: pin.Model, srdf: str | Path | None, urdf: Path) -> dict[str, np.ndarray]:
     """SRDF poses in the file's order, whole-robot poses (with a ``root_joint`` entry) first.
 
     Pinocchio stores the poses in a map sorted by name, so the order is read from the XML.
+
+    Raises:
+        RobotModelError: the SRDF is not valid XML, or its poses name joints the URDF does not have.
     """
     if srdf is None:
         return {}
+    states = _parse_xml(Path(srdf)).findall("group_state")  # before Pinocchio: it cannot name the file
+    known = set(model.names)
+    unknown = sorted({j.get("name") for s in states for j in s.findall("joint")} - known - {ROOT_JOINT, None})
+    if unknown:
+        raise RobotModelError(
+            f"the SRDF's joints do not match the URDF's: {srdf} sets joints {unknown} that {urdf} does not "
+            f"have (an SRDF of another robot?); URDF joints: {list(model.names)[2:]}"
+        )
     pin.loadReferenceConfigurations(model, str(srdf), False)
     loaded = {item.key(): np.array(item.data(), dtype=float) for item in model.referenceConfigurations}
-    states = _parse_xml(Path(srdf)).findall("group_state")
     whole = [s.get("name") for s in states if any(j.get("name") == ROOT_JOINT for j in s.findall("joint"))]
     order = list(dict.fromkeys([*whole, *(s.get("name") for s in states), *sorted(loaded)]))
     poses = {}
@@ -424,6 +491,29 @@ def _reference_poses(model: pin.Model, srdf: str | Path | None) -> dict[str, np.
             q[3:7] /= np.linalg.norm(q[3:7])
             poses[pose_name] = q
     return poses
+
+
+def _check_pose_covers_joints(
+    model: pin.Model, srdf: str | Path, urdf: Path, pose: str, locked_joints: Sequence[str]
+) -> None:
+    """Warn unless the reference pose sets every movable joint the reduced model keeps (else it is 0)."""
+    states = [s for s in _parse_xml(Path(srdf)).findall("group_state") if s.get("name") == pose]
+    if not states:
+        return
+    given = {j.get("name") for s in states for j in s.findall("joint")}
+    missing = [
+        model.names[j]
+        for j in range(2, model.njoints)
+        if model.names[j] not in given and model.names[j] not in locked_joints and model.joints[j].nq > 0
+    ]
+    if missing:  # a warning: the official b1-z1.srdf leaves out jointGripper (0 is a fine value there)
+        warnings.warn(
+            f"the SRDF's joints do not match the URDF's: pose {pose!r} of {srdf} sets no value for the "
+            f"{urdf.name} joints {missing}, which are put at 0 (an SRDF of another robot?). Use the SRDF "
+            "written for this URDF, add those joints to the pose, or lock them (locked_joints)",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _foot_radius(urdf_root: ET.Element, foot_frames: Sequence[str]) -> float:

@@ -73,12 +73,18 @@ class OCPSettings:
                 f"n_nodes = {self.n_nodes} is above {MAX_NODES}: the problem grows linearly (N = 1000 took "
                 "419 s and 11.4 GB for its first solve); the paper uses 15"
             )
-        if not 1 <= self.n_tau_nodes <= self.n_nodes - 1:
+        if (
+            not isinstance(self.n_tau_nodes, int | np.integer)
+            or isinstance(self.n_tau_nodes, bool)
+            or not 1 <= self.n_tau_nodes <= self.n_nodes - 1
+        ):
             raise ValueError(
                 f"n_tau_nodes must be in [1, n_nodes - 1 = {self.n_nodes - 1}], got {self.n_tau_nodes}"
             )
         if self.formulation not in FORMULATIONS:
             raise ValueError(f"unknown formulation {self.formulation!r}; available: {list(FORMULATIONS)}")
+        if not isinstance(self.ee_force_input, bool | np.bool_):
+            raise ValueError(f"OCPSettings.ee_force_input must be True or False, got {self.ee_force_input!r}")
 
 
 class ParameterLayout:
@@ -157,6 +163,15 @@ class OCP:
     """
 
     def __init__(self, robot: Robot, settings: OCPSettings | None = None):
+        if not isinstance(robot, Robot):
+            raise ValueError(f"robot must be a wbmpc.model.robot.Robot (see load_robot), got {robot!r}")
+        if robot.n_feet != 4:
+            raise ValueError(
+                f"robot {robot.name!r} has {robot.n_feet} foot frames {list(robot.foot_frames)}; the OCP's "
+                "gaits schedule 4 feet (FL, FR, RL, RR): give load_robot four foot_frames"
+            )
+        if settings is not None and not isinstance(settings, OCPSettings):
+            raise ValueError(f"settings must be an OCPSettings, got {settings!r}")
         self.robot = robot
         self.settings = settings or OCPSettings()
         self.smodel = cpin.SymbolicModel(robot.model)

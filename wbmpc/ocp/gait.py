@@ -96,7 +96,10 @@ class Gait:
         _finite("tick", self.tick, positive=True)
         if not 0.0 <= _finite("swing_fraction", self.swing_fraction) < 1.0:
             raise ValueError(f"swing_fraction must be in [0, 1), got {self.swing_fraction}")
-        offsets = np.asarray(self.offsets, dtype=float)
+        try:
+            offsets = np.asarray(self.offsets, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"offsets must be 4 phases in [0, 1), got {self.offsets!r}") from None
         if offsets.shape != (4,) or not np.all((offsets >= 0.0) & (offsets < 1.0)):
             raise ValueError(f"offsets must be 4 phases in [0, 1), got {self.offsets!r}")
         object.__setattr__(self, "offsets", tuple(float(o) for o in offsets))
@@ -303,10 +306,14 @@ class SwingParams:
     v_touchdown: float = -0.2
 
     def __post_init__(self):
-        if not 0.0 < _finite("height", self.height) < 0.5:
-            raise ValueError(f"height must be in (0, 0.5) m, got {self.height}")
-        _finite("v_liftoff", self.v_liftoff)
-        _finite("v_touchdown", self.v_touchdown)
+        if not 0.0 < _finite("SwingParams.height", self.height) < 0.5:
+            raise ValueError(f"SwingParams.height must be in (0, 0.5) m, got {self.height}")
+        if not 0.0 <= _finite("SwingParams.v_liftoff", self.v_liftoff) <= 2.0:
+            raise ValueError(f"SwingParams.v_liftoff must be in [0, 2] m/s (upwards), got {self.v_liftoff}")
+        if not -2.0 <= _finite("SwingParams.v_touchdown", self.v_touchdown) <= 0.0:
+            raise ValueError(
+                f"SwingParams.v_touchdown must be in [-2, 0] m/s (downwards), got {self.v_touchdown}"
+            )
 
 
 def _check_swing(phi, T, h, v_lo, v_td):

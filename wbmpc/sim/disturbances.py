@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wbmpc import checks
+
 
 @dataclass(frozen=True)
 class Kick:
@@ -20,9 +22,8 @@ class Kick:
     delta_v: tuple[float, ...]
 
     def __post_init__(self):
-        dv = np.asarray(self.delta_v, dtype=float)
-        if dv.shape not in ((3,), (6,)) or not np.all(np.isfinite(dv)):
-            raise ValueError(f"Kick.delta_v must be 3 or 6 finite numbers [m/s, rad/s], got {self.delta_v!r}")
+        checks.number("Kick.time", self.time, low=0.0, unit="s")
+        checks.vector("Kick.delta_v", self.delta_v, (3, 6), unit="m/s, rad/s")
 
 
 @dataclass(frozen=True)
@@ -42,17 +43,11 @@ class Push:
     target: str = "base"
 
     def __post_init__(self):
+        checks.number("Push.start", self.start, low=0.0, unit="s")
+        checks.number("Push.duration", self.duration, low=0.0, low_open=True, unit="s")
         if self.target not in ("base", "ee"):
             raise ValueError(f"Push.target must be 'base' or 'ee', got {self.target!r}")
-        f = np.asarray(self.force, dtype=float)
-        sizes = ((3,), (6,)) if self.target == "base" else ((3,),)
-        if f.shape not in sizes or not np.all(np.isfinite(f)):
-            raise ValueError(
-                f"Push.force must be {' or '.join(str(s[0]) for s in sizes)} finite numbers [N], "
-                f"got {self.force!r}"
-            )
-        if not self.duration > 0:
-            raise ValueError(f"Push.duration must be > 0 [s], got {self.duration}")
+        checks.vector("Push.force", self.force, (3, 6) if self.target == "base" else 3, unit="N")
 
     def active(self, t: float) -> bool:
         return self.start <= t < self.start + self.duration

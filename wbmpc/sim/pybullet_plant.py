@@ -35,6 +35,23 @@ Physics choices:
   robot's links are given friction 1 and restitution 1 and the ground carries ``ground_friction`` and
   ``restitution``; a box's ``friction`` is then its friction against the robot.
 
+Emulated-hardware options (all off by default; :class:`wbmpc.sim.hardware.HardwareProfile` sets them), model
+errors the MPC does not know about:
+
+* Motor friction ``tau_f = -(c tanh(qdot / v_s) + b qdot)`` per joint (``coulomb_friction`` c [N m],
+  ``viscous_friction`` b [N m s/rad], smoothed over ``friction_velocity`` v_s [rad/s]), added to the
+  motor torque (after its clipping), on top of the URDF joint damping and friction above.
+* Rotor inertia (``armature`` I_a [kg m^2], reflected through the gearbox): PyBullet has no armature
+  (``changeDynamics`` has no such option, its URDF parser ignores it), so the plant adds the reflected
+  inertia torque ``-I_a qddot`` with ``qddot`` the mean of the last two finite differences of the joint
+  rates. One-step-old estimates are unstable once I_a exceeds a joint's effective link inertia (the B1
+  calf ~0.04 kg m^2, the Z1 wrist ~0.009); the two-step mean is stable up to twice it, and the error
+  decays within a few steps.
+* Base centre-of-mass offset (``base_com_offset`` [m], base frame): the base link's inertial origin in the
+  loaded URDF moves by it; the state conversion follows (it reads the inertial frame back).
+* Torque-command latency (``torque_latency`` [s]): a delay line of ``round(latency / dt)`` steps between
+  :meth:`PyBulletPlant.step`'s torques and the motors (the first command fills it after :meth:`reset`).
+
 Example:
     >>> robot = load_b1_z1()
     >>> with PyBulletPlant(robot, scene=[Box((0.3, 0.3, 0.3), (1.0, 0.0, 0.15), mass=5.0)]) as plant:
@@ -57,6 +74,7 @@ import numpy as np
 import pinocchio as pin
 import pybullet as p
 
+from wbmpc import checks
 from wbmpc.model.robot import Robot, RobotModelError, example_robot_data_dir
 from wbmpc.sim.plant import Plant, PlantState
 from wbmpc.sim.plant import fallen as _fallen
@@ -92,6 +110,15 @@ class Box:
     friction: float = 0.8
     yaw: float = 0.0
 
+    def __post_init__(self):
+        size = checks.vector("Box.size", self.size, 3, unit="m")
+        if np.any(size <= 0):
+            raise ValueError(f"Box.size must be 3 edge lengths > 0 [m], got {self.size!r}")
+        checks.vector("Box.position", self.position, 3, unit="m")
+        checks.number("Box.mass", self.mass, low=0.0, unit="kg (0: static)")
+        checks.number("Box.friction", self.friction, low=0.0)
+        checks.number("Box.yaw", self.yaw, unit="rad")
+
 
 @dataclass(frozen=True)
 class Wall:
@@ -111,6 +138,17 @@ class Wall:
     size: tuple[float, float] = (2.0, 2.0)
     thickness: float = 0.1
     friction: float = 0.5
+
+    def __post_init__(self):
+        checks.vector("Wall.position", self.position, 3, unit="m")
+        normal = checks.vector("Wall.normal", self.normal, 3)
+        if np.linalg.norm(normal) < 1e-9:
+            raise ValueError(f"Wall.normal must be a non-zero direction (to the robot), got {self.normal!r}")
+        size = checks.vector("Wall.size", self.size, 2, unit="m")
+        if np.any(size <= 0):
+            raise ValueError(f"Wall.size must be (width, height) > 0 [m], got {self.size!r}")
+        checks.number("Wall.thickness", self.thickness, low=0.0, low_open=True, unit="m")
+        checks.number("Wall.friction", self.friction, low=0.0)
 
 
 @dataclass(frozen=True)
@@ -143,6 +181,19 @@ class Payload:
     tether_damping: float = 100.0
     rolling_friction: float = 0.0
 
+    def __post_init__(self):
+        checks.number("Payload.mass", self.mass, low=0.0, low_open=True, unit="kg")
+        if self.position is not None:
+            checks.vector("Payload.position", self.position, 3, unit="m")
+        checks.number("Payload.radius", self.radius, low=0.0, low_open=True, unit="m")
+        if self.attach not in (None, "rigid", "tether"):
+            raise ValueError(f"Payload.attach must be None, 'rigid' or 'tether', got {self.attach!r}")
+        if self.position is None and self.attach != "rigid":
+            raise ValueError("Payload.position is required unless attach='rigid'")
+        checks.number("Payload.tether_length", self.tether_length, low=0.0, low_open=True, unit="m")
+        for key in ("friction", "tether_stiffness", "tether_damping", "rolling_friction"):
+            checks.number(f"Payload.{key}", getattr(self, key), low=0.0)
+
 
 SceneObject = Box | Wall | Payload
 
@@ -161,6 +212,12 @@ class PyBulletPlant(Plant):
             ``{name: object}`` (names default to ``box0``, ``wall0``, ``payload0``, ...).
         physics_params: Extra keyword arguments for ``pybullet.setPhysicsEngineParameter`` (e.g.
             ``{"numSolverIterations": 100}``).
+        coulomb_friction: Motor Coulomb friction [N m], scalar or (nj,) (see the module doc).
+        viscous_friction: Motor viscous friction [N m s/rad], scalar or (nj,).
+        friction_velocity: Joint rate [rad/s] over which the Coulomb friction rises (tanh smoothing).
+        armature: Reflected rotor inertia [kg m^2], scalar or (nj,), emulated by a torque.
+        base_com_offset: Shift of the base link's centre of mass [m] (3,), base frame; ``None``: none.
+        torque_latency: Delay [s] of the torque commands (rounded to whole steps).
 
     Raises:
         ValueError: On a non-positive ``dt`` or a negative friction or restitution.
@@ -176,6 +233,12 @@ class PyBulletPlant(Plant):
         joint_damping: bool = True,
         scene: Iterable[SceneObject] | Mapping[str, SceneObject] | None = None,
         physics_params: Mapping[str, object] | None = None,
+        coulomb_friction: float | np.ndarray = 0.0,
+        viscous_friction: float | np.ndarray = 0.0,
+        friction_velocity: float = 0.02,
+        armature: float | np.ndarray = 0.0,
+        base_com_offset: np.ndarray | None = None,
+        torque_latency: float = 0.0,
     ) -> None:
         if not (np.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be > 0 [s], got {dt}")
@@ -188,6 +251,19 @@ class PyBulletPlant(Plant):
         self._dt = float(dt)
         self._foot_names = tuple(robot.foot_frames)
         self._mu = float(ground_friction)
+        nj = robot.nj
+        self._coulomb = _joint_values(coulomb_friction, nj, "coulomb_friction")
+        self._viscous = _joint_values(viscous_friction, nj, "viscous_friction")
+        self._armature = _joint_values(armature, nj, "armature")
+        if not (np.isfinite(friction_velocity) and friction_velocity > 0.0):
+            raise ValueError(f"friction_velocity must be > 0 [rad/s], got {friction_velocity}")
+        self._friction_velocity = float(friction_velocity)
+        com_offset = base_com_offset
+        if com_offset is not None:
+            com_offset = _finite_vector(com_offset, 3, "base_com_offset")
+        if not (np.isfinite(torque_latency) and torque_latency >= 0.0):
+            raise ValueError(f"torque_latency must be >= 0 [s], got {torque_latency}")
+        self._latency_steps = round(torque_latency / self._dt)
         self._client = p.connect(p.DIRECT)
         if self._client < 0:
             raise RuntimeError("could not start a PyBullet DIRECT client")
@@ -204,7 +280,8 @@ class PyBulletPlant(Plant):
             )
             with tempfile.TemporaryDirectory(prefix="wbmpc_pybullet_") as tmp:
                 urdf = Path(tmp) / Path(robot.urdf_path).name
-                urdf.write_text(preprocess_urdf(robot.urdf_path, robot.locked_joints))
+                text = preprocess_urdf(robot.urdf_path, robot.locked_joints)
+                urdf.write_text(text if com_offset is None else offset_base_com(text, com_offset))
                 self._body = p.loadURDF(
                     str(urdf),
                     flags=p.URDF_USE_INERTIA_FROM_FILE,
@@ -230,6 +307,10 @@ class PyBulletPlant(Plant):
         self._counts = {k: np.zeros(n, dtype=np.int64) for k in _VIOLATION_KINDS}
         self._clip_counts = np.zeros(robot.nj, dtype=np.int64)
         self._tau_limits = robot.joint_torque_limits
+        self._tau_queue: list[np.ndarray] = []  # torque delay line, oldest first
+        self._v_joint_history: list[np.ndarray] = []  # last three joint rates, for the armature torque
+        self._motor_torque = np.zeros(robot.nj)
+        self._extra_torque = np.zeros(robot.nj)
         self._q = robot.q_nominal
         self._v = np.zeros(robot.nv)
         self.reset(robot.q_nominal, np.zeros(robot.nv))
@@ -385,6 +466,16 @@ class PyBulletPlant(Plant):
         return {k: counts.copy() for k, counts in self._counts.items()}
 
     @property
+    def motor_torque(self) -> np.ndarray:
+        """Motor torques [N m] (nj,) of the last step: the clipped command, ``torque_latency`` late."""
+        return self._motor_torque.copy()
+
+    @property
+    def friction_torque(self) -> np.ndarray:
+        """Motor friction plus armature torques [N m] (nj,) added in the last step (0 without them)."""
+        return self._extra_torque.copy()
+
+    @property
     def torque_clip_counts(self) -> np.ndarray:
         """Per-joint number of steps whose commanded torque exceeded the limit since :meth:`reset`, (nj,)."""
         return self._clip_counts.copy()
@@ -464,6 +555,10 @@ class PyBulletPlant(Plant):
             self._violations[k][:] = False
             self._counts[k][:] = 0
         self._clip_counts[:] = 0
+        self._tau_queue.clear()
+        self._v_joint_history.clear()
+        self._motor_torque[:] = 0.0
+        self._extra_torque[:] = 0.0
         for name in self._constraints:
             # Carried payloads move with the robot; a constraint error would otherwise yank them.
             self._place_payload_at_ee(name)
@@ -502,6 +597,7 @@ class PyBulletPlant(Plant):
         if clipped.any():
             self._clip_counts += clipped
             tau = np.clip(tau, -self._tau_limits, self._tau_limits)
+        tau = self._motor_dynamics(tau)
         wrench = None if external_wrench is None else _finite_vector(external_wrench, 6, "external_wrench")
         p.setJointMotorControlArray(body, self._joint_ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
         if wrench is not None:
@@ -524,6 +620,25 @@ class PyBulletPlant(Plant):
         self._steps += 1
         self._read_contacts()
         return self.state
+
+    def _motor_dynamics(self, tau: np.ndarray) -> np.ndarray:
+        """Joint torques [N m] reaching the links: the command delayed, plus friction and armature torques."""
+        if self._latency_steps:
+            if not self._tau_queue:
+                self._tau_queue.extend(tau.copy() for _ in range(self._latency_steps))
+            self._tau_queue.append(tau.copy())
+            tau = self._tau_queue.pop(0)
+        self._motor_torque = tau
+        qd = self._v[6:]
+        extra = -(self._coulomb * np.tanh(qd / self._friction_velocity) + self._viscous * qd)
+        if self._armature.any():
+            history = self._v_joint_history
+            history.append(qd.copy())
+            del history[:-3]
+            if len(history) == 3:  # mean acceleration over the last two steps
+                extra -= self._armature * (history[2] - history[0]) / (2.0 * self._dt)
+        self._extra_torque = extra
+        return tau + extra
 
     def _read_contacts(self) -> None:
         n = self._robot.n_feet
@@ -947,7 +1062,55 @@ def _resolve_mesh(filename: str, urdf_path: Path) -> str:
     return str(path if path.is_absolute() else (urdf_path.parent / path).resolve())
 
 
+def offset_base_com(urdf_text: str, offset: np.ndarray) -> str:
+    """URDF text with the base's centre of mass moved by ``offset`` [m] (root link frame).
+
+    The mass moved is the heaviest link rigidly attached to the root link (through fixed joints; the B1's
+    root ``base`` is a massless dummy on the ``trunk``), so that its inertial origin moves by ``offset``
+    expressed in the root frame.
+    """
+    root = ET.fromstring(urdf_text)
+    links = {link.get("name"): link for link in root.iter("link")}
+    children = {child.get("link") for child in root.iter("child")}
+    base = next(name for name in links if name not in children)
+    # Links rigidly attached to the base, with their rotation relative to it.
+    rigid, stack = {base: np.eye(3)}, [base]
+    while stack:
+        parent = stack.pop()
+        for joint in root.iter("joint"):
+            if joint.get("type") == "fixed" and joint.find("parent").get("link") == parent:
+                origin = joint.find("origin")
+                rpy = np.zeros(3) if origin is None else np.array(origin.get("rpy", "0 0 0").split(), float)
+                child = joint.find("child").get("link")
+                rigid[child] = rigid[parent] @ pin.rpy.rpyToMatrix(rpy)
+                stack.append(child)
+
+    def mass(name):
+        element = links[name].find("inertial/mass")
+        return 0.0 if element is None else float(element.get("value", 0.0))
+
+    heavy = max(rigid, key=mass)
+    inertial = links[heavy].find("inertial")
+    if inertial is None:
+        raise RobotModelError(f"no link rigidly attached to {base!r} has an <inertial> to move")
+    origin = inertial.find("origin")
+    if origin is None:
+        origin = ET.SubElement(inertial, "origin")
+    xyz = np.array(origin.get("xyz", "0 0 0").split(), dtype=float)
+    origin.set("xyz", " ".join(f"{x:.17g}" for x in xyz + rigid[heavy].T @ np.asarray(offset, float)))
+    return ET.tostring(root, encoding="unicode")
+
+
 # ---------------------------------------------------------------------------------------------- helpers
+def _joint_values(x, nj: int, name: str) -> np.ndarray:
+    """A per-joint parameter >= 0: scalar or (nj,), as an (nj,) array."""
+    arr = np.broadcast_to(np.asarray(x, dtype=float), (nj,)).copy() if np.ndim(x) == 0 else None
+    arr = _finite_vector(x, nj, name) if arr is None else arr
+    if not np.isfinite(arr).all() or np.any(arr < 0):
+        raise ValueError(f"{name} must be finite and >= 0, got {x!r}")
+    return arr
+
+
 def _scene_items(scene) -> list[tuple[str | None, SceneObject]]:
     if scene is None:
         return []

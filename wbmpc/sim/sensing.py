@@ -11,6 +11,7 @@ then a first-order low-pass on the joint velocities,
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,10 +47,17 @@ class SensorNoise:
             "base_velocity",
         ):
             value = getattr(self, name)
-            if not np.isfinite(value) or value < 0:
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, numbers.Real)
+                or not np.isfinite(value)
+                or value < 0
+            ):
                 raise ValueError(
                     f"SensorNoise.{name} must be a finite standard deviation >= 0, got {value!r}"
                 )
+        if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) or self.seed < 0:
+            raise ValueError(f"SensorNoise.seed must be an integer >= 0, got {self.seed!r}")
 
 
 class LowPassFilter:
@@ -61,9 +69,9 @@ class LowPassFilter:
     """
 
     def __init__(self, cutoff_hz: float | None, dt: float):
-        if dt <= 0 or not np.isfinite(dt):
+        if not isinstance(dt, numbers.Real) or dt <= 0 or not np.isfinite(dt):
             raise ValueError(f"dt must be > 0 [s], got {dt}")
-        if cutoff_hz is not None and not cutoff_hz > 0:
+        if cutoff_hz is not None and (not isinstance(cutoff_hz, numbers.Real) or not cutoff_hz > 0):
             raise ValueError(f"cutoff_hz must be > 0 [Hz] or None, got {cutoff_hz}")
         self.alpha = (
             1.0 if cutoff_hz is None or np.isinf(cutoff_hz) else dt / (dt + 1.0 / (2 * np.pi * cutoff_hz))

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from wbmpc.quick import quick_mode
+from wbmpc.studies import cli_checks
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -382,6 +383,18 @@ def run_variants(
                     proc.wait()
 
 
+def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Reject bad values before any work (argparse prints the one-line reason and exits with status 2)."""
+    cli_checks.at_least(parser, "--steps", args.steps, 1, "measured MPC steps")
+    cli_checks.at_least(parser, "--warmup", args.warmup, 0, "discarded solves")
+    cli_checks.at_least(parser, "--batch", args.batch, 1, "solves per turn")
+    for _, _, nodes in args.case or ():
+        cli_checks.nodes(parser, "--case NODES", nodes)
+    if args.output is not None:
+        cli_checks.writable_file(parser, "--output", args.output, "solve_times.json")
+    cli_checks.writable_folder(parser, "figure folder", REPO_ROOT / "data/output/bench")
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(
         prog="python -m wbmpc.studies.bench", description=__doc__.splitlines()[0]
@@ -413,6 +426,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.worker:
         _worker()
         return []
+    check_arguments(parser, args)
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.solver import blasfeo
 

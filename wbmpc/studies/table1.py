@@ -24,6 +24,7 @@ import numpy as np
 
 from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.quick import quick_mode
+from wbmpc.studies import cli_checks
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -228,6 +229,18 @@ def plot(rows: list[dict], path: Path) -> None:
     save_figure(fig, path.name, path.parent)
 
 
+def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Reject bad values before any work (argparse prints the one-line reason and exits with status 2)."""
+    cli_checks.at_least(parser, "--steps", args.steps, 1, "measured MPC steps")
+    cli_checks.at_least(parser, "--warmup", args.warmup, 0, "discarded solves")
+    cli_checks.nodes(parser, "--nodes", args.nodes)
+    cli_checks.non_negative(parser, "--kp", args.kp)
+    cli_checks.non_negative(parser, "--kd", args.kd)
+    if args.output is not None:
+        cli_checks.writable_file(parser, "--output", args.output, "table1.csv")
+    cli_checks.writable_folder(parser, "figure folder", REPO_ROOT / "data/output/bench")
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(
         prog="python -m wbmpc.studies.table1", description=__doc__.splitlines()[0]
@@ -243,6 +256,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--output", type=Path, default=None, help="CSV path (default data/bench/table1.csv)")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
+    check_arguments(parser, args)
     from wbmpc.model.robot import load_b1_z1
 
     quick = args.quick or quick_mode()

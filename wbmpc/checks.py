@@ -1,0 +1,111 @@
+"""Argument checks shared by the public API: every bad input is refused up front with a ``ValueError``
+whose message names the argument, the value given and what is allowed (issue 12).
+
+Example:
+    >>> number("ClosedLoopConfig.kp", -1.0, low=0.0)
+    ValueError: ClosedLoopConfig.kp must be a finite number >= 0, got -1.0
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+
+def number(
+    name: str,
+    value,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    unit: str = "",
+    finite: bool = True,
+) -> float:
+    """``value`` as a float, or ``ValueError`` naming ``name`` unless it is a real number in the range.
+
+    Args:
+        name: How the user spells the argument (e.g. ``"ClosedLoopConfig.kp"``).
+        value: The value given.
+        low, high: Bounds (``None``: unbounded); inclusive unless ``low_open`` / ``high_open``.
+        unit: Unit shown in the message (e.g. ``"s"``).
+        finite: Refuse NaN and inf (NaN is always refused).
+    """
+    allowed = _range_text(low, high, low_open, high_open, unit)
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a {allowed}, got {value!r}")
+    x = float(value)
+    if math.isnan(x) or (finite and math.isinf(x)):
+        raise ValueError(f"{name} must be a {allowed}, got {value!r}")
+    if low is not None and (x < low or (low_open and x == low)):
+        raise ValueError(f"{name} must be a {allowed}, got {value!r}")
+    if high is not None and (x > high or (high_open and x == high)):
+        raise ValueError(f"{name} must be a {allowed}, got {value!r}")
+    return x
+
+
+def integer(name: str, value, *, low: int | None = None, high: int | None = None) -> int:
+    """``value`` as an int, or ``ValueError`` naming ``name`` unless it is an integer (no bool) in range."""
+    bounds = []
+    if low is not None:
+        bounds.append(f">= {low}")
+    if high is not None:
+        bounds.append(f"<= {high}")
+    allowed = "an integer" + (" " + " and ".join(bounds) if bounds else "")
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    return int(value)
+
+
+def vector(name: str, value, sizes: int | tuple[int, ...], *, unit: str = "") -> np.ndarray:
+    """``value`` as a finite float vector of one of the ``sizes``, or ``ValueError`` naming ``name``."""
+    sizes = (sizes,) if isinstance(sizes, int) else tuple(sizes)
+    what = " or ".join(str(s) for s in sizes) + f" finite numbers{f' [{unit}]' if unit else ''}"
+    if isinstance(value, str | bytes):
+        raise ValueError(f"{name} must be {what}, got the string {value!r}")
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be {what}, got {value!r}") from None
+    if array.ndim != 1 or array.size not in sizes:
+        raise ValueError(f"{name} must be {what}, got {value!r} (shape {array.shape})")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be {what}, got {value!r} (NaN or inf)")
+    return array
+
+
+def names(name: str, value, *, min_count: int = 0, unique: bool = True) -> tuple[str, ...]:
+    """A sequence of strings (not a lone string), or ``ValueError`` naming ``name``."""
+    if isinstance(value, str):
+        raise ValueError(
+            f"{name} must be a list of names, got the string {value!r} (write [{value!r}] for one name)"
+        )
+    try:
+        items = tuple(value)
+    except TypeError:
+        raise ValueError(f"{name} must be a list of names, got {value!r}") from None
+    if bad := [item for item in items if not isinstance(item, str)]:
+        raise ValueError(f"{name} must hold names (strings), got {bad!r} in {value!r}")
+    if len(items) < min_count:
+        raise ValueError(f"{name} must hold at least {min_count} name(s), got {list(items)}")
+    if unique and len(set(items)) != len(items):
+        repeated = sorted({item for item in items if items.count(item) > 1})
+        raise ValueError(f"{name} names {repeated} more than once: {list(items)}")
+    return items
+
+
+def _range_text(low, high, low_open, high_open, unit) -> str:
+    unit = f" [{unit}]" if unit else ""
+    if low is not None and high is not None:
+        left, right = "(" if low_open else "[", ")" if high_open else "]"
+        return f"finite number in {left}{low:g}, {high:g}{right}{unit}"
+    if low is not None:
+        return f"finite number {'>' if low_open else '>='} {low:g}{unit}"
+    if high is not None:
+        return f"finite number {'<' if high_open else '<='} {high:g}{unit}"
+    return f"finite number{unit}"

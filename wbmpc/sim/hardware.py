@@ -1,0 +1,302 @@
+"""An emulated robot: the PyBullet plant with the errors of hardware, and the state estimator in the loop.
+
+On the robot the MPC differs from the simulation in ways its model does not know about (project issue 13):
+the motors have friction and rotor inertia, the base centre of mass sits far from the model's (the B1's
+rear legs carry about 60 % of the weight), torque commands arrive a few milliseconds late, nothing measures
+the floating base (a state estimator reconstructs it from a noisy, biased IMU and noisy encoders) and the
+solve takes real time. :class:`HardwareProfile` collects these mismatches, each one switchable, with its
+value; the MPC keeps its nominal model.
+
+Two ways to use it:
+
+* ``ClosedLoopConfig(plant="pybullet", hardware=profile, state="estimated")`` applies the robot side of a
+  profile: the plant's friction, armature, centre-of-mass offset and latency, and the IMU and encoder
+  errors the estimator reads (``state="estimated"``); every controller setting stays the config's own.
+* :func:`hardware_config` is the preset: the same plus the controller settings of the profile (estimated
+  state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter),
+  e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
+
+:class:`EstimatedState` is the estimator in the loop: at the low-level rate it synthesises an IMU reading
+from two consecutive true states (:func:`wbmpc.estimation.synthesize_imu`) and encoder readings, takes the
+contacts from the gait schedule (:func:`wbmpc.estimation.contact_trust`) and runs
+:class:`wbmpc.estimation.StateEstimator`; the controller sees its estimate instead of the plant's state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+from wbmpc.estimation import (
+    EstimatorNoise,
+    ImuNoise,
+    ImuReading,
+    JointReading,
+    StateEstimator,
+    contact_trust,
+    synthesize_imu,
+)
+
+__all__ = [
+    "EstimatedState",
+    "HardwareProfile",
+    "estimate_errors",
+    "hardware_config",
+    "rear_leg_share",
+]
+
+#: A MEMS-grade IMU after its start-up calibration (white noise per 500 Hz sample, constant biases).
+_HARDWARE_IMU = ImuNoise(
+    gyro=0.003,
+    accelerometer=0.05,
+    gyro_bias=(0.005, -0.004, 0.003),
+    accelerometer_bias=(0.05, -0.03, 0.04),
+)
+
+
+@dataclass(frozen=True)
+class HardwareProfile:
+    """The mismatches of the emulated robot, each switchable (0 or ``None`` turns one off).
+
+    Leg values are per joint of a leg (hip, thigh, calf), repeated for the four legs; arm values apply to
+    every actuated arm joint. :meth:`ideal` gives a profile with every mismatch off.
+
+    Attributes:
+        leg_coulomb: Motor Coulomb friction of the leg joints [N m] (hip, thigh, calf).
+        leg_viscous: Motor viscous friction of the leg joints [N m s/rad].
+        leg_armature: Reflected rotor inertia of the leg joints [kg m^2] (rotor ~1-3e-4 kg m^2 times a
+            gear ratio of ~10-15 squared; the calf's gearing is the highest).
+        arm_coulomb: Motor Coulomb friction of the arm joints [N m], on top of the URDF's (1-2 N m, which
+            the plant applies anyway).
+        arm_viscous: Motor viscous friction of the arm joints [N m s/rad], on top of the URDF's damping.
+        arm_armature: Reflected rotor inertia of the arm joints [kg m^2].
+        friction_velocity: Joint rate [rad/s] over which the Coulomb friction rises (``tanh`` smoothing).
+        base_com_offset: Shift of the base link's centre of mass [m], base frame (x forward). The default
+            moves it 19 cm backwards: the rear legs then carry ~60 % of the weight standing (48 % nominal).
+        torque_latency: Delay of the torque commands on their way to the motors [s].
+        encoder_noise: Joint-angle noise [rad] (standard deviation per sample).
+        encoder_velocity_noise: Joint-rate noise [rad/s] per sample, before the 50 Hz filter.
+        imu: IMU white noise and constant biases (:class:`wbmpc.estimation.ImuNoise`); ``None``: exact.
+        estimator: Tuning of the state estimator (``None``: the defaults of
+            :class:`wbmpc.estimation.EstimatorNoise`).
+        seed: Seed of the sensor noise.
+        state: Controller state source of the preset (:func:`hardware_config`): ``"estimated"``.
+        delay: Computation delay of the preset: ``"measured"`` (each solve's wall time), or seconds.
+        leg_gains: Low-level ``(kp, kd)`` of the leg joints [N m/rad], [N m s/rad] in the preset (pure
+            feed-forward oscillated on hardware; Kd ~20 damps it).
+        arm_gains: Low-level ``(kp, kd)`` of the arm joints in the preset (a small stiffness).
+        velocity_cutoff_hz: Joint-velocity low-pass of the estimator in the preset [Hz].
+    """
+
+    leg_coulomb: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    leg_viscous: tuple[float, float, float] = (0.2, 0.2, 0.2)
+    leg_armature: tuple[float, float, float] = (0.02, 0.02, 0.04)
+    arm_coulomb: float = 0.3
+    arm_viscous: float = 0.1
+    arm_armature: float = 0.005
+    friction_velocity: float = 0.05
+    base_com_offset: tuple[float, float, float] | None = (-0.19, 0.0, 0.0)
+    torque_latency: float = 0.003
+    encoder_noise: float = 5e-4
+    encoder_velocity_noise: float = 0.05
+    imu: ImuNoise | None = field(default_factory=lambda: _HARDWARE_IMU)
+    estimator: EstimatorNoise | None = None
+    seed: int = 0
+    state: str = "estimated"
+    delay: str | float = "measured"
+    leg_gains: tuple[float, float] = (0.0, 20.0)
+    arm_gains: tuple[float, float] = (5.0, 1.0)
+    velocity_cutoff_hz: float | None = 50.0
+
+    def __post_init__(self):
+        for name in ("leg_coulomb", "leg_viscous", "leg_armature"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (3,) or not np.all(np.isfinite(value)) or np.any(value < 0):
+                raise ValueError(
+                    f"HardwareProfile.{name} must be 3 values >= 0 (hip, thigh, calf), got {value}"
+                )
+        for name in ("arm_coulomb", "arm_viscous", "arm_armature", "torque_latency", "encoder_noise"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"HardwareProfile.{name} must be finite and >= 0, got {value!r}")
+        if not (np.isfinite(self.encoder_velocity_noise) and self.encoder_velocity_noise >= 0):
+            raise ValueError(
+                f"HardwareProfile.encoder_velocity_noise must be >= 0, got {self.encoder_velocity_noise}"
+            )
+        if not (np.isfinite(self.friction_velocity) and self.friction_velocity > 0):
+            raise ValueError(f"HardwareProfile.friction_velocity must be > 0, got {self.friction_velocity!r}")
+        if self.base_com_offset is not None:
+            offset = np.asarray(self.base_com_offset, dtype=float)
+            if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+                raise ValueError(f"HardwareProfile.base_com_offset must be 3 finite values, got {offset}")
+        if self.imu is not None and not isinstance(self.imu, ImuNoise):
+            raise ValueError(f"HardwareProfile.imu must be an ImuNoise or None, got {self.imu!r}")
+        if self.state not in ("ground_truth", "estimated"):
+            raise ValueError(
+                f"HardwareProfile.state must be 'ground_truth' or 'estimated', got {self.state!r}"
+            )
+        for name in ("leg_gains", "arm_gains"):
+            gains = np.asarray(getattr(self, name), dtype=float)
+            if gains.shape != (2,) or not np.all(np.isfinite(gains)) or np.any(gains < 0):
+                raise ValueError(f"HardwareProfile.{name} must be (kp, kd) >= 0, got {getattr(self, name)!r}")
+
+    @classmethod
+    def ideal(cls, **changes) -> HardwareProfile:
+        """A profile with every mismatch off (the nominal robot, exact sensors), then ``changes``."""
+        off = {
+            "leg_coulomb": (0.0, 0.0, 0.0),
+            "leg_viscous": (0.0, 0.0, 0.0),
+            "leg_armature": (0.0, 0.0, 0.0),
+            "arm_coulomb": 0.0,
+            "arm_viscous": 0.0,
+            "arm_armature": 0.0,
+            "base_com_offset": None,
+            "torque_latency": 0.0,
+            "encoder_noise": 0.0,
+            "encoder_velocity_noise": 0.0,
+            "imu": None,
+        }
+        return cls(**(off | changes))
+
+    def plant_options(self, robot) -> dict:
+        """Keyword arguments of :class:`~wbmpc.sim.pybullet_plant.PyBulletPlant` for this profile."""
+        arm = set(robot.arm_joint_names) if robot.has_arm else set()
+        legs = [name for name in robot.joint_names if name not in arm]
+        if len(legs) % 3:
+            raise ValueError(f"expected legs of 3 joints (hip, thigh, calf), got leg joints {legs}")
+
+        def per_joint(leg_values, arm_value):
+            leg_values = iter(np.tile(leg_values, len(legs) // 3))
+            return np.array([arm_value if name in arm else next(leg_values) for name in robot.joint_names])
+
+        return {
+            "coulomb_friction": per_joint(self.leg_coulomb, self.arm_coulomb),
+            "viscous_friction": per_joint(self.leg_viscous, self.arm_viscous),
+            "armature": per_joint(self.leg_armature, self.arm_armature),
+            "friction_velocity": self.friction_velocity,
+            "base_com_offset": None if self.base_com_offset is None else np.asarray(self.base_com_offset),
+            "torque_latency": self.torque_latency,
+        }
+
+    def describe(self) -> dict:
+        """The profile as plain JSON-ready values (for run summaries)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["imu"] = None if self.imu is None else asdict(self.imu)
+        out["estimator"] = None if self.estimator is None else asdict(self.estimator)
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
+
+
+def hardware_config(profile: HardwareProfile | None = None, **overrides):
+    """The "hardware" preset: a PyBullet closed loop on the emulated robot with the profile's controller.
+
+    Args:
+        profile: The emulated robot (default: :class:`HardwareProfile` with its documented values).
+        **overrides: Any other :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig` field (duration, gait, ...),
+            including the preset's own (``kp``, ``kd``, ``arm_gains``, ``delay``, ``state``, ...).
+
+    Returns:
+        A :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig`.
+    """
+    from wbmpc.sim.closed_loop import ClosedLoopConfig
+
+    profile = profile or HardwareProfile()
+    preset = {
+        "plant": "pybullet",
+        "hardware": profile,
+        "state": profile.state,
+        "delay": profile.delay,
+        "kp": profile.leg_gains[0],
+        "kd": profile.leg_gains[1],
+        "arm_gains": tuple(profile.arm_gains),
+        "velocity_cutoff_hz": profile.velocity_cutoff_hz,
+    }
+    return ClosedLoopConfig(**(preset | overrides))
+
+
+class EstimatedState:
+    """The state estimator in the closed loop, fed with synthesised IMU and encoder readings.
+
+    Args:
+        robot: The robot.
+        schedule: Gait or gait schedule deciding the contacts (``contact(t)``, ``sample(times)``).
+        dt: Sample period [s] (the low-level period: one :meth:`measure` per period).
+        profile: Sensor errors and estimator tuning (``imu``, ``encoder_noise``, ``encoder_velocity_noise``,
+            ``estimator``, ``seed``); ``None``: exact sensors.
+        velocity_cutoff_hz: Joint-velocity low-pass cut-off [Hz] of the estimator (``None``: unfiltered).
+    """
+
+    def __init__(
+        self, robot, schedule, dt: float, profile: HardwareProfile | None = None, velocity_cutoff_hz=50.0
+    ):
+        self.profile = profile or HardwareProfile.ideal()
+        self.schedule = schedule
+        self.dt = float(dt)
+        self.estimator = StateEstimator(
+            robot, self.dt, self.profile.estimator, velocity_cutoff_hz=velocity_cutoff_hz
+        )
+        self._rng = np.random.default_rng(self.profile.seed)
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    def reset(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start from the true state (the robot at rest before the run); returns it as the first estimate."""
+        self.estimator.reset(q, v)
+        self._rng = np.random.default_rng(self.profile.seed)
+        self._prev = (q.copy(), v.copy())
+        return q.copy(), v.copy()
+
+    def readings(self, q: np.ndarray, v: np.ndarray) -> tuple[ImuReading, JointReading]:
+        """The IMU and encoder readings of the true state ``(q, v)`` one period after the previous one."""
+        if self._prev is None:
+            raise RuntimeError("call EstimatedState.reset(q0, v0) first")
+        n, rng = self.profile, self._rng
+        imu = synthesize_imu(q, v, *self._prev, self.dt, noise=n.imu, rng=rng)
+        nj = q.size - 7
+        joints = JointReading(
+            q[7:] + n.encoder_noise * rng.standard_normal(nj),
+            v[6:] + n.encoder_velocity_noise * rng.standard_normal(nj),
+        )
+        self._prev = (q.copy(), v.copy())
+        return imu, joints
+
+    def measure(self, q: np.ndarray, v: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The estimate ``(q_hat, v_hat)`` from the readings of the true state ``(q, v)`` at ``t`` [s]."""
+        imu, joints = self.readings(q, v)
+        contact = np.asarray(self.schedule.contact(t), dtype=bool)
+        return self.estimator.update(imu, joints, contact, contact_trust(self.schedule, t))
+
+
+def estimate_errors(q: np.ndarray, v: np.ndarray, q_hat: np.ndarray, v_hat: np.ndarray) -> dict:
+    """Errors of an estimate against the truth over a run (arrays (T, nq), (T, nv)).
+
+    Returns:
+        ``height_max_m``, ``height_rms_m`` (base height), ``position_final_m`` (horizontal drift at the end),
+        ``velocity_rms_mps``, ``velocity_max_mps`` (base linear velocity, base frame), ``tilt_max_rad``
+        (roll/pitch error), ``joint_velocity_rms_radps``.
+    """
+    dz = q_hat[:, 2] - q[:, 2]
+    dv = np.linalg.norm(v_hat[:, :3] - v[:, :3], axis=1)
+    z_true = _base_z(q)
+    z_hat = _base_z(q_hat)
+    tilt = np.arccos(np.clip(np.sum(z_true * z_hat, axis=1), -1.0, 1.0))
+    return {
+        "height_max_m": float(np.max(np.abs(dz))),
+        "height_rms_m": float(np.sqrt(np.mean(dz**2))),
+        "position_final_m": float(np.linalg.norm(q_hat[-1, :2] - q[-1, :2])),
+        "velocity_rms_mps": float(np.sqrt(np.mean(dv**2))),
+        "velocity_max_mps": float(np.max(dv)),
+        "tilt_max_rad": float(np.max(tilt)),
+        "joint_velocity_rms_radps": float(np.sqrt(np.mean((v_hat[:, 6:] - v[:, 6:]) ** 2))),
+    }
+
+
+def rear_leg_share(foot_forces: np.ndarray, rear: tuple[int, ...] = (2, 3)) -> float:
+    """Share of the total vertical foot force carried by the rear feet (forces (..., n_feet, 3) [N])."""
+    fz = np.asarray(foot_forces, dtype=float)[..., 2].reshape(-1, np.shape(foot_forces)[-2]).sum(axis=0)
+    return float(fz[list(rear)].sum() / fz.sum())
+
+
+def _base_z(q: np.ndarray) -> np.ndarray:
+    """World z axis of the base (T, 3) from quaternions (x, y, z, w) in ``q[:, 3:7]``."""
+    x, y, z, w = (q[:, 3 + i] / np.linalg.norm(q[:, 3:7], axis=1) for i in range(4))
+    return np.stack([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)], axis=1)
