@@ -1,0 +1,191 @@
+"""Real-time benchmark: solver variants compared in one interleaved run, each in its own process.
+
+A process holds one BLASFEO and one version of wbmpc, so every variant (native or generic BLASFEO, the
+arm force as a parameter or as the paper's pinned input, compiled or in-process, and optionally an older
+checkout of wbmpc as the baseline) runs in a subprocess; the variants take turns round after round, so
+that the machine's drift and the other jobs on it hit them all alike. Each turn is a closed-loop run of
+the default benchmark (B1 + Z1 trotting with the arm reference, rigid plant, N = 15) through
+``wbmpc.studies.bench.run_case``; the solve times of all rounds are pooled per variant. Compare the
+ratios, not the absolute times, across machines::
+
+    git worktree add /tmp/wbmpc_b9ef13b b9ef13b      # the baseline, optional
+    python -m wbmpc.studies.realtime --baseline /tmp/wbmpc_b9ef13b --rounds 3 --steps 80
+
+writes ``data/bench/real_time.json`` (per variant: mean, median, p95, max [ms], iterations, the profile
+of a solve, build time of the compiled library, the BLASFEO mapped, the CPU).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+# name -> (compiled, BLASFEO, arm force as an input (paper's layout), baseline checkout)
+VARIANTS = {
+    "compiled, native, arm force parameter": (True, "native", False, False),
+    "compiled, native, arm force input": (True, "native", True, False),
+    "compiled, generic, arm force parameter": (True, "generic", False, False),
+    "in-process, native, arm force parameter": (False, "native", False, False),
+    "in-process, generic, arm force parameter": (False, "generic", False, False),
+    "baseline compiled": (True, "generic", True, True),
+    "baseline in-process": (False, "generic", True, True),
+}
+
+_WORKER = """
+import json, sys, time
+import numpy as np
+from wbmpc.robot import load_b1_z1
+from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.ocp import OCPSettings
+from wbmpc.gait import make_gait
+from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
+compiled, ee_force_input, steps, warmup = {compiled}, {ee_force_input}, {steps}, {warmup}
+robot = load_b1_z1()
+settings = OCPSettings(n_nodes=15) if {baseline} else OCPSettings(n_nodes=15, ee_force_input=ee_force_input)
+mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled))
+mpc.verbose = False
+mpc._solver(cold=True), mpc._solver(cold=False)  # build or load before timing
+log = run_closed_loop(mpc, ClosedLoopConfig(duration=(steps + warmup) / 80.0), progress=False).log
+ms = 1e3 * np.asarray(log.solve_time[warmup:])
+timings = log.timings[warmup:]
+keys = ("evaluations", "solver", "search_direction", "initialization", "overhead", "total")
+profile = {{k: 1e3 * float(np.mean([t[k] for t in timings])) for k in keys if all(k in t for t in timings)}}
+if {baseline}:
+    library = "generic (the casadi wheel's)"
+else:
+    from wbmpc.solver import blasfeo
+    library = blasfeo.info()["choice"]
+build = mpc.compiled_nlp
+record = {{
+    "solve_ms": ms.tolist(),
+    "mean_ms": float(ms.mean()),
+    "iterations_mean": float(np.mean(log.iterations[warmup:])),
+    "converged_fraction": float(np.mean(log.success[warmup:])),
+    "profile_mean_ms": profile,
+    "build_s": build.build_s if build else None,
+    "build_peak_mb": build.build_peak_mb if build else None,
+    "blasfeo": library,
+    "decision_variables": int(mpc.ocp.n_variables),
+}}
+sys.stdout.write("\\nRECORD " + json.dumps(record) + "\\n")
+"""
+
+
+def run_turn(variant: str, steps: int, warmup: int, baseline: Path | None) -> dict:
+    """One closed-loop run of ``variant`` in a fresh process; its benchmark record and solve times."""
+    compiled, library, ee_force_input, is_baseline = VARIANTS[variant]
+    env = {**os.environ, "WBMPC_BLASFEO": library, "OMP_NUM_THREADS": "1"}
+    cwd = REPO_ROOT
+    if is_baseline:
+        env["PYTHONPATH"] = str(baseline)  # the old checkout's wbmpc shadows this one
+        cwd = baseline
+    code = _WORKER.format(
+        compiled=compiled, ee_force_input=ee_force_input, steps=steps, warmup=warmup, baseline=is_baseline
+    )
+    proc = subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True)
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("RECORD ")]
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"{variant}: worker failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    return json.loads(lines[-1][len("RECORD ") :])
+
+
+def summarize(records: list[dict]) -> dict:
+    """Pooled statistics over the turns of one variant."""
+    ms = np.concatenate([np.asarray(r["solve_ms"], float) for r in records])
+    profile = {
+        key: float(np.mean([r["profile_mean_ms"].get(key, np.nan) for r in records]))
+        for key in records[0].get("profile_mean_ms", {})
+    }
+    first = records[0]
+    return {
+        "solves": int(ms.size),
+        "mean_ms": float(ms.mean()),
+        "median_ms": float(np.median(ms)),
+        "p95_ms": float(np.percentile(ms, 95)),
+        "max_ms": float(ms.max()),
+        "p95_over_mean": float(np.percentile(ms, 95) / ms.mean()),
+        "turn_means_ms": [float(r["mean_ms"]) for r in records],
+        "iterations_mean": float(np.mean([r["iterations_mean"] for r in records])),
+        "converged_fraction": float(np.mean([r["converged_fraction"] for r in records])),
+        "profile_mean_ms": profile,
+        "build_s": first.get("build_s"),
+        "build_peak_mb": first.get("build_peak_mb"),
+        "blasfeo": first.get("blasfeo"),
+        "decision_variables": first.get("decision_variables"),
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(
+        prog="python -m wbmpc.studies.realtime", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--rounds", type=int, default=3, help="turns per variant (default 3)")
+    parser.add_argument("--steps", type=int, default=80, help="measured solves per turn (default 80)")
+    parser.add_argument("--warmup", type=int, default=10, help="discarded solves per turn (default 10)")
+    parser.add_argument("--baseline", type=Path, default=None, help="checkout of an older wbmpc to compare")
+    parser.add_argument("--variant", action="append", choices=list(VARIANTS), help="only these (repeatable)")
+    parser.add_argument("--output", type=Path, default=REPO_ROOT / "data/bench/real_time.json")
+    args = parser.parse_args(argv)
+    for flag, value, low in (
+        ("--rounds", args.rounds, 1),
+        ("--steps", args.steps, 1),
+        ("--warmup", args.warmup, 0),
+    ):
+        if value < low:
+            parser.error(f"{flag} must be >= {low}, got {value}")
+    if args.baseline is not None and not (args.baseline / "wbmpc" / "__init__.py").is_file():
+        parser.error(f"--baseline {args.baseline} is not a checkout of wbmpc (no wbmpc/__init__.py)")
+    variants = args.variant or [v for v in VARIANTS if args.baseline is not None or not VARIANTS[v][3]]
+    from wbmpc.sim.closed_loop import machine_description
+    from wbmpc.solver import blasfeo
+
+    turns: dict[str, list[dict]] = {v: [] for v in variants}
+    start = time.perf_counter()
+    for round_index in range(args.rounds):
+        for variant in variants:
+            record = run_turn(variant, args.steps, args.warmup, args.baseline)
+            turns[variant].append(record)
+            print(
+                f"[realtime] round {round_index + 1}: {variant}: mean {record['mean_ms']:.1f} ms", flush=True
+            )
+    results = {v: summarize(records) for v, records in turns.items()}
+    reference = results.get("baseline compiled")
+    for result in results.values():
+        if reference is not None:
+            result["mean_ratio_to_baseline_compiled"] = result["mean_ms"] / reference["mean_ms"]
+    out = {
+        "machine": machine_description(),
+        "cpu": blasfeo.cpu_info(),
+        "rounds": args.rounds,
+        "steps_per_turn": args.steps,
+        "warmup_per_turn": args.warmup,
+        "baseline": str(args.baseline) if args.baseline else None,
+        "load_average_at_end": list(os.getloadavg()),
+        "wall_s": time.perf_counter() - start,
+        "variants": results,
+    }
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(out, indent=2))
+    for name, result in results.items():
+        ratio = result.get("mean_ratio_to_baseline_compiled")
+        print(
+            f"{name:45s} mean {result['mean_ms']:6.1f}  median {result['median_ms']:6.1f}  "
+            f"p95 {result['p95_ms']:6.1f} ms  iterations {result['iterations_mean']:.2f}"
+            + (f"  x{1 / ratio:.2f} faster than the baseline" if ratio else ""),
+            flush=True,
+        )
+    print(f"[realtime] wrote {args.output}")
+    return out
+
+
+if __name__ == "__main__":
+    main()
