@@ -14,6 +14,18 @@ typed n-d array read without parsing (a 10 s run at 500 Hz loads in milliseconds
 tool that reads ``.npy`` (NumPy, Julia's NPZ.jl, MATLAB's npy readers) can open it. A hardware log converted
 to the same columns is analysed by the same code (:func:`load_log`).
 
+Streaming (long runs, :class:`LogWriter`): while a run goes on, its rows are written every chunk (e.g. 1 s
+of simulated time) to ``<log>.npz.parts/chunk_000000.npz``, ``chunk_000001.npz``, ... (each chunk an
+``.npz`` with the same column names, written to a temporary name and renamed, so a chunk on disk is always
+complete) next to ``<log>.npz.parts/meta.json``; memory holds one chunk at most. At the end of the run, and
+when it is interrupted (Ctrl-C or an exception: the rows so far are written, then the error goes on), the
+chunks are consolidated into the single ``<log>.npz`` above, one column at a time streamed chunk by chunk
+into the archive (peak memory: one chunk of one column), and the folder is removed. Extra ``meta`` keys of
+streamed logs: ``partial`` (True if the run stopped before its end), ``t_reached`` (last sample time [s]),
+``interrupted`` (what stopped it), ``chunks``. A ``.parts`` folder left by a killed process (never
+consolidated) is read by :func:`load_log` too, given either the folder or the ``.npz`` path it was meant
+for, and marked ``partial``; :func:`consolidate` turns it into the ``.npz``.
+
 Columns written by :func:`wbmpc.sim.closed_loop.run_closed_loop` (units SI, world axes unless stated):
 
 =====================  =========================================================================
@@ -43,12 +55,19 @@ Columns written by :func:`wbmpc.sim.closed_loop.run_closed_loop` (units SI, worl
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import zipfile
+import zlib
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 FORMAT_VERSION = 1
+TABLES = (("signals", "t"), ("solves", "solve_t"))  # (table, its time column)
+_NPY = np.lib.format
 
 
 @dataclass
@@ -74,6 +93,11 @@ class RunLog:
         t = self.signals.get("t")
         return float(t[-1] - t[0]) if t is not None and t.size > 1 else 0.0
 
+    @property
+    def partial(self) -> bool:
+        """The run stopped before its end (interrupted, or a streamed log never consolidated)."""
+        return bool(self.meta.get("partial", False))
+
     def validate(self) -> None:
         """Check the tables: a time column each, equal lengths, finite times.
 
@@ -93,47 +117,334 @@ class RunLog:
                 raise ValueError(f"time column {time_key!r} contains NaN or inf")
 
 
+def _npz_path(path: str | Path) -> Path:
+    path = Path(path)
+    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+
+
+def parts_folder(path: str | Path) -> Path:
+    """The chunk folder of a streamed log: ``<log>.npz.parts``."""
+    path = _npz_path(path)
+    return path.with_name(path.name + ".parts")
+
+
+def _flat(log: RunLog) -> dict[str, np.ndarray]:
+    arrays = {f"signals/{k}": np.asarray(v) for k, v in log.signals.items()}
+    return arrays | {f"solves/{k}": np.asarray(v) for k, v in log.solves.items()}
+
+
+def _meta_array(meta: dict) -> np.ndarray:
+    return np.array(json.dumps({"format_version": FORMAT_VERSION, **meta}, default=json_default))
+
+
 def save_log(log: RunLog, path: str | Path) -> Path:
     """Write ``log`` to ``path`` (``.npz`` appended if missing); returns the path."""
     log.validate()
-    path = Path(path)
-    if path.suffix != ".npz":
-        path = path.with_suffix(path.suffix + ".npz")
+    path = _npz_path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {f"signals/{k}": np.asarray(v) for k, v in log.signals.items()}
-    arrays |= {f"solves/{k}": np.asarray(v) for k, v in log.solves.items()}
-    meta = {"format_version": FORMAT_VERSION, **log.meta}
-    arrays["meta"] = np.array(json.dumps(meta, default=json_default))
-    np.savez_compressed(path, **arrays)
+    np.savez_compressed(path, **_flat(log), meta=_meta_array(log.meta))
     return path
 
 
 def load_log(path: str | Path) -> RunLog:
-    """Read a log written by :func:`save_log` (or converted from hardware to the same columns).
+    """Read a log written by :func:`save_log` or :class:`LogWriter` (or converted from hardware).
+
+    ``path`` may also be a ``.parts`` folder of a streamed log that was never consolidated (the process was
+    killed), or the ``.npz`` path it was meant for: the chunks are read and ``meta["partial"]`` is True.
 
     Raises:
-        FileNotFoundError: if ``path`` does not exist.
-        ValueError: if the file is not a wbmpc log or is malformed.
+        FileNotFoundError: if neither ``path`` nor its ``.parts`` folder exists.
+        ValueError: if the file is truncated or corrupt, its ``meta`` entry is not JSON, or it is not a
+            wbmpc log; the message names the file.
     """
     path = Path(path)
+    if path.is_dir():
+        return _load_parts(path)
     if not path.exists():
-        raise FileNotFoundError(f"no log file at {path}")
-    with np.load(path, allow_pickle=False) as archive:
-        if "meta" not in archive.files:
-            raise ValueError(f"{path} is not a wbmpc log (no 'meta' entry)")
-        log = RunLog(meta=json.loads(str(archive["meta"])))
-        for key in archive.files:
-            table, _, name = key.partition("/")
-            if table == "signals":
-                log.signals[name] = archive[key]
-            elif table == "solves":
-                log.solves[name] = archive[key]
+        if parts_folder(path).is_dir():
+            return _load_parts(parts_folder(path))
+        raise FileNotFoundError(f"no log file at {path} (nor a streamed-log folder {parts_folder(path)})")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            if "meta" not in archive.files:
+                raise ValueError(f"{path} is not a wbmpc log (no 'meta' entry)")
+            meta = _parse_meta(str(archive["meta"]), f"{path} (entry 'meta')")
+            log = RunLog(meta=meta)
+            for key in archive.files:
+                table, _, name = key.partition("/")
+                if table == "signals":
+                    log.signals[name] = archive[key]
+                elif table == "solves":
+                    log.solves[name] = archive[key]
+    except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
+        raise ValueError(f"{path} is truncated or corrupt (not a complete .npz log): {exc}") from exc
+    except ValueError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ValueError(f"{path} is truncated or corrupt (not a complete .npz log): {exc}") from exc
     if log.meta.get("format_version", 0) > FORMAT_VERSION:
         raise ValueError(
             f"{path} has format version {log.meta['format_version']}; this wbmpc reads up to {FORMAT_VERSION}"
         )
     log.validate()
     return log
+
+
+def _parse_meta(text: str, where: str) -> dict:
+    try:
+        meta = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{where}: the meta entry is not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict):
+        raise ValueError(f"{where}: the meta entry is JSON but not an object (got {type(meta).__name__})")
+    return meta
+
+
+# ---------------------------------------------------------------------------------------------- streaming
+class LogWriter:
+    """Streams a log to ``<path>.parts/`` in chunks and consolidates it into ``path`` (see the module doc).
+
+    Args:
+        path: The final ``.npz`` log (``.npz`` appended if missing). An existing log or chunk folder of the
+            same name is removed first (they belong to an earlier run).
+        meta: Metadata known at the start (written to ``meta.json`` at once, so a killed run keeps it).
+    """
+
+    def __init__(self, path: str | Path, meta: dict | None = None):
+        self.path = _npz_path(path)
+        self.parts = parts_folder(self.path)
+        self.meta = dict(meta or {})
+        self.chunks = 0
+        self.t_reached: float | None = None
+        self.closed = False
+        if self.parts.exists():
+            shutil.rmtree(self.parts)
+        self.path.unlink(missing_ok=True)
+        self.parts.mkdir(parents=True)
+        start = {"format_version": FORMAT_VERSION, **self.meta, "partial": True, "interrupted": _KILLED}
+        (self.parts / "meta.json").write_text(json.dumps(start, default=json_default))
+
+    def write_chunk(self, log: RunLog) -> Path | None:
+        """Write the rows of ``log`` (one chunk) as the next chunk file; ``None`` if it has no rows."""
+        log.validate()
+        if not len(log.signals.get("t", ())) and not len(log.solves.get("solve_t", ())):
+            return None
+        target = self.parts / f"chunk_{self.chunks:06d}.npz"
+        temporary = target.with_name(target.name + ".tmp")
+        with open(temporary, "wb") as f:
+            np.savez_compressed(f, **_flat(log))
+        os.replace(temporary, target)  # a chunk on disk is always complete
+        self.chunks += 1
+        t = log.signals.get("t")
+        if t is not None and len(t):
+            self.t_reached = float(t[-1])
+        return target
+
+    def close(
+        self,
+        summarize: Callable[[Mapping[str, np.ndarray]], dict] | None = None,
+        interrupted: str | None = None,
+    ) -> dict:
+        """Consolidate the chunks into the ``.npz`` log and remove the chunk folder.
+
+        Args:
+            summarize: ``f(columns) -> dict`` stored as ``meta["summary"]``; ``columns`` reads each column
+                from the consolidated file when asked (:class:`LazyColumns`). If it raises on an
+                interrupted run, the log is still written (``meta["summary_error"]`` says why).
+            interrupted: What stopped the run early (``meta["partial"]`` is then True), or ``None``.
+
+        Returns:
+            The metadata written.
+        """
+        if self.closed:
+            raise RuntimeError(f"log {self.path} is already closed")
+        self.closed = True
+        temporary = self.path.with_name(self.path.name + ".tmp")
+        _write_columns(_scan_parts(self.parts), temporary)
+        meta = {
+            **self.meta,
+            "partial": interrupted is not None,
+            "t_reached": self.t_reached,
+            "chunks": self.chunks,
+        }
+        if interrupted is not None:
+            meta["interrupted"] = interrupted
+        if summarize is not None:
+            try:
+                meta["summary"] = summarize(LazyColumns(temporary))
+            except Exception as exc:  # noqa: BLE001 - an interrupted run's log matters more than its summary
+                if interrupted is None:
+                    temporary.unlink(missing_ok=True)
+                    raise
+                meta["summary"], meta["summary_error"] = None, f"{type(exc).__name__}: {exc}"
+        _append_meta(temporary, meta)
+        os.replace(temporary, self.path)
+        shutil.rmtree(self.parts)
+        return {"format_version": FORMAT_VERSION, **meta}
+
+
+_KILLED = "the process ended before the streamed log was consolidated (killed?)"
+
+
+class LazyColumns(Mapping):
+    """Columns of an ``.npz`` log by name (signals first, then solves), each read from disk when asked.
+
+    Nothing is cached, so memory holds only the columns the caller keeps.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        with zipfile.ZipFile(self.path) as archive:
+            names = [n.removesuffix(".npy") for n in archive.namelist()]
+        self._keys = {}
+        for table in ("solves", "signals"):  # signals win a name clash, as in RunLog.__getitem__
+            self._keys |= {n.partition("/")[2]: n for n in names if n.startswith(table + "/")}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        with np.load(self.path, allow_pickle=False) as archive:
+            return archive[self._keys[name]]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+
+def _chunk_files(parts: Path) -> list[Path]:
+    return sorted(parts.glob("chunk_*.npz"))
+
+
+@dataclass
+class _Column:
+    """Where one column's rows are: (chunk file, rows) pieces, and its consolidated row shape and dtype."""
+
+    pieces: list = field(default_factory=list)
+    row_shape: tuple | None = None
+    dtypes: list = field(default_factory=list)
+    empty: tuple | None = None  # (shape, dtype) of a zero-row piece, for columns that never get rows
+
+    @property
+    def rows(self) -> int:
+        return sum(n for _, n in self.pieces)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.result_type(*self.dtypes) if self.dtypes else np.dtype(self.empty[1])
+
+
+def _scan_parts(parts: Path) -> dict[str, _Column]:
+    """Read the array headers of every chunk (no data) and plan the consolidated columns.
+
+    A column keeps only if its rows add up to its table's time column (as :meth:`RunLog.validate` wants).
+    """
+    columns: dict[str, _Column] = {}
+    for chunk in _chunk_files(parts):
+        try:
+            with zipfile.ZipFile(chunk) as archive:
+                for info in archive.infolist():
+                    key = info.filename.removesuffix(".npy")
+                    with archive.open(info) as f:
+                        version = _NPY.read_magic(f)
+                        read = _NPY.read_array_header_1_0 if version == (1, 0) else _NPY.read_array_header_2_0
+                        shape, _, dtype = read(f)
+                    column = columns.setdefault(key, _Column())
+                    if not shape or shape[0] == 0:
+                        column.empty = column.empty or (shape, dtype)
+                        continue
+                    if column.row_shape is not None and column.row_shape != shape[1:]:
+                        raise ValueError(
+                            f"{chunk}: column {key!r} has rows of shape {shape[1:]}, "
+                            f"earlier chunks {column.row_shape}"
+                        )
+                    column.row_shape = shape[1:]
+                    column.dtypes.append(dtype)
+                    column.pieces.append((chunk, shape[0]))
+        except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
+            raise ValueError(f"chunk {chunk} of a streamed log is truncated or corrupt: {exc}") from exc
+    keep = {}
+    for table, time_key in TABLES:
+        time_column = columns.get(f"{table}/{time_key}")
+        if time_column is None:
+            continue
+        n = time_column.rows
+        keep |= {k: c for k, c in columns.items() if k.startswith(table + "/") and c.rows == n}
+    return keep
+
+
+def _write_columns(columns: dict[str, _Column], path: Path) -> None:
+    """Write the planned columns to a compressed ``.npz``, one column at a time, one chunk piece at a time."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as archive:
+        for key, column in columns.items():
+            dtype = column.dtype
+            shape = (column.rows, *column.row_shape) if column.pieces else column.empty[0]
+            header = {"descr": _NPY.dtype_to_descr(dtype), "fortran_order": False, "shape": shape}
+            with archive.open(f"{key}.npy", "w", force_zip64=True) as out:
+                _NPY.write_array_header_2_0(out, header)
+                for chunk, _ in column.pieces:
+                    with np.load(chunk, allow_pickle=False) as piece:
+                        out.write(np.ascontiguousarray(piece[key], dtype=dtype).tobytes())
+
+
+def _load_parts_meta(parts: Path) -> dict:
+    """The metadata of a never-consolidated streamed log: ``meta.json``, partial, time reached, chunks."""
+    meta_file = parts / "meta.json"
+    meta = _parse_meta(meta_file.read_text(), str(meta_file)) if meta_file.exists() else {}
+    meta["partial"] = True
+    meta.setdefault("interrupted", _KILLED)
+    chunks = _chunk_files(parts)
+    meta["chunks"] = len(chunks)
+    meta["t_reached"] = None
+    for chunk in reversed(chunks):
+        with np.load(chunk, allow_pickle=False) as piece:
+            if "signals/t" in piece.files and piece["signals/t"].size:
+                meta["t_reached"] = float(piece["signals/t"][-1])
+                break
+    return meta
+
+
+def _load_parts(parts: Path) -> RunLog:
+    """A never-consolidated streamed log, read into memory and marked partial."""
+    log = RunLog(meta=_load_parts_meta(parts))
+    for key, column in _scan_parts(parts).items():
+        if column.pieces:
+            arrays = []
+            for chunk, _ in column.pieces:
+                with np.load(chunk, allow_pickle=False) as piece:
+                    arrays.append(piece[key])
+            value = np.concatenate(arrays).astype(column.dtype, copy=False)
+        else:
+            value = np.zeros(column.empty[0], column.empty[1])
+        table, _, name = key.partition("/")
+        (log.signals if table == "signals" else log.solves)[name] = value
+    log.validate()
+    return log
+
+
+def consolidate(path: str | Path) -> Path:
+    """Turn the ``.parts`` folder a killed run left into its ``.npz`` log (marked partial); returns the path.
+
+    Args:
+        path: The ``.parts`` folder or the ``.npz`` log it was meant for.
+    """
+    path = Path(path)
+    path = path.with_suffix("") if path.suffix == ".parts" else _npz_path(path)
+    parts = parts_folder(path)
+    if not parts.is_dir():
+        raise FileNotFoundError(f"no streamed-log folder {parts}")
+    meta = _load_parts_meta(parts)
+    temporary = path.with_name(path.name + ".tmp")
+    _write_columns(_scan_parts(parts), temporary)
+    _append_meta(temporary, meta)
+    os.replace(temporary, path)
+    shutil.rmtree(parts)
+    return path
+
+
+def _append_meta(path: Path, meta: dict) -> None:
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as archive:
+        with archive.open("meta.npy", "w") as f:
+            _NPY.write_array(f, _meta_array(meta), allow_pickle=False)
 
 
 def json_default(value):

@@ -12,27 +12,36 @@ that (a real-time loop cannot start a solve before the previous one returns).
 
 The controller sees the state through :class:`wbmpc.sim.sensing.StateSensor` (ground truth by default;
 optional noise and the paper's 50 Hz joint-velocity filter). Every run keeps a log that converts to the
-columnar :class:`wbmpc.io.logs.RunLog` (``result.run_log()``, ``result.save(path)``).
+columnar :class:`wbmpc.io.logs.RunLog` (``result.run_log()``, ``result.save(path)``); with
+``run_closed_loop(..., log_path=...)`` it is streamed to disk in chunks as the run goes (bounded memory; a
+run stopped by Ctrl-C or an exception leaves a readable log marked partial).
 """
 
 from __future__ import annotations
 
 import math
 import platform
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+import shutil
+import signal
+import threading
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
+from wbmpc import checks
 from wbmpc.control.arm_task import ArmReference, heading_frame, velocity_command
 from wbmpc.control.diagnostics import FailureReporter
 from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCSolution, WholeBodyMPC
-from wbmpc.io.logs import RunLog, save_log
+from wbmpc.io.logs import LogWriter, RunLog, load_log, save_log
 from wbmpc.ocp.gait import Gait, GaitSchedule
 from wbmpc.ocp.time_grid import node_times
 from wbmpc.sim.disturbances import Disturbance, Kick, Push
+from wbmpc.sim.hardware import EstimatedState, HardwareProfile, estimate_errors
 from wbmpc.sim.plant import ContactPlant, fallen
 from wbmpc.sim.sensing import SensorNoise, StateSensor
 
@@ -71,6 +80,16 @@ class ClosedLoopConfig:
             ``parse_gait_schedule("stand:2,trot:6,stand:2")``), replacing the MPC's for its duration;
             ``None`` keeps the MPC's. The one schedule decides the plant's contacts and the MPC's stage
             contacts, evaluated in integer plant ticks.
+        state: What the MPC and the low level see: ``"ground_truth"`` (the plant's state through
+            ``sensor_noise`` and the velocity filter) or ``"estimated"`` (the state estimator
+            :class:`wbmpc.estimation.StateEstimator` at the low-level rate on synthesised IMU and encoder
+            readings, with the errors of ``hardware`` (exact without one), contacts from the gait schedule,
+            joint rates filtered at ``velocity_cutoff_hz``). The log keeps both: ``q``, ``v`` true,
+            ``q_meas``, ``v_meas`` what the controller saw.
+        hardware: The emulated robot's mismatches (:class:`wbmpc.sim.hardware.HardwareProfile`; PyBullet
+            plant only): motor friction, armature, base centre-of-mass offset, torque latency, sensor errors
+            of the estimator. ``None``: the nominal robot. :func:`wbmpc.sim.hardware.hardware_config` also
+            sets the profile's controller settings.
     """
 
     duration: float = 10.0
@@ -97,6 +116,8 @@ class ClosedLoopConfig:
     ground_friction: float = 0.8
     arm_gains: tuple[float, float] | None = None
     gait: Gait | GaitSchedule | None = None
+    state: str = "ground_truth"
+    hardware: HardwareProfile | None = None
 
     def __post_init__(self):
         if self.gait is not None and not isinstance(self.gait, Gait | GaitSchedule):
@@ -114,9 +135,74 @@ class ClosedLoopConfig:
         for d in self.disturbances:
             if not isinstance(d, Kick | Push):
                 raise ValueError(f"unknown disturbance {d!r}; use wbmpc.sim.disturbances.Kick or Push")
+        self._check_numbers()
+        self._check_state()
+
+    def _check_state(self) -> None:
+        if self.state not in ("ground_truth", "estimated"):
+            raise ValueError(f"state must be 'ground_truth' or 'estimated', got {self.state!r}")
+        if self.state == "estimated" and self.sensor_noise is not None:
+            raise ValueError("sensor_noise is for state='ground_truth'; estimator errors are in hardware")
+        if self.hardware is not None and not isinstance(self.hardware, HardwareProfile):
+            raise ValueError(f"hardware must be a HardwareProfile or None, got {self.hardware!r}")
+        if self.hardware is not None and self.plant != "pybullet":
+            raise ValueError("hardware (the emulated robot) needs plant='pybullet'")
+
+    def _check_numbers(self) -> None:
+        """Rates, durations, gains and commands: finite, in range, right size (issue 12)."""
+        name = "ClosedLoopConfig."
+        for key, unit in (("duration", "s"), ("mpc_rate", "Hz"), ("low_level_rate", "Hz"), ("plant_dt", "s")):
+            checks.number(name + key, getattr(self, key), low=0.0, low_open=True, unit=unit)
+        if self.duration < self.plant_dt:
+            raise ValueError(
+                f"ClosedLoopConfig.duration = {self.duration} s is shorter than one plant step "
+                f"(plant_dt = {self.plant_dt} s): nothing would be simulated"
+            )
+        if self.low_level_rate < self.mpc_rate:
+            raise ValueError(
+                f"ClosedLoopConfig.low_level_rate ({self.low_level_rate} Hz) must be >= mpc_rate "
+                f"({self.mpc_rate} Hz): the low level interpolates each MPC plan"
+            )
+        for key in ("kp", "kd", "arm_kp", "ground_friction"):
+            checks.number(name + key, getattr(self, key), low=0.0)
+        if self.arm_gains is not None:
+            gains = checks.vector(name + "arm_gains", self.arm_gains, 2)
+            if np.any(gains < 0):
+                raise ValueError(f"ClosedLoopConfig.arm_gains (kp, kd) must be >= 0, got {self.arm_gains!r}")
+        checks.number(name + "max_tilt", self.max_tilt, low=0.0, low_open=True, unit="rad")
+        checks.number(name + "base_yaw_rate", self.base_yaw_rate, unit="rad/s")
+        for key in ("base_velocity", "ee_velocity", "ee_force"):
+            checks.vector(name + key, getattr(self, key), 3)
+        if isinstance(self.delay, int | float) and not isinstance(self.delay, bool):
+            checks.number(name + "delay", self.delay, low=0.0, unit="s")
+        if self.velocity_cutoff_hz is not None:
+            cutoff = self.velocity_cutoff_hz
+            checks.number(name + "velocity_cutoff_hz", cutoff, low=0.0, low_open=True, unit="Hz")
+        if self.arm_reference is not None and not isinstance(self.arm_reference, ArmReference):
+            raise ValueError(
+                f"ClosedLoopConfig.arm_reference must be an ArmReference or None, got {self.arm_reference!r}"
+            )
+        if self.sensor_noise is not None and not isinstance(self.sensor_noise, SensorNoise):
+            raise ValueError(
+                f"ClosedLoopConfig.sensor_noise must be a SensorNoise or None, got {self.sensor_noise!r}"
+            )
+        if self.command_schedule is not None and not callable(self.command_schedule):
+            raise ValueError(
+                "ClosedLoopConfig.command_schedule must be a function f(t) -> dict, "
+                f"got {self.command_schedule!r}"
+            )
+        for d in self.disturbances:
+            start = d.time if isinstance(d, Kick) else d.start
+            if start >= self.duration:
+                warnings.warn(
+                    f"{d!r} starts at {start} s, after the end of the run (duration {self.duration} s): "
+                    "it is never applied; lengthen the run or move it earlier",
+                    stacklevel=4,
+                )
 
     def steps(self) -> tuple[int, int, int]:
         """Total plant steps, plant steps per MPC update and per low-level update."""
+        self.__post_init__()  # fields may have changed since construction
         per_mpc = round(1.0 / (self.mpc_rate * self.plant_dt))
         per_low = round(1.0 / (self.low_level_rate * self.plant_dt))
         if (
@@ -132,7 +218,13 @@ class ClosedLoopConfig:
 
 @dataclass
 class ClosedLoopLog:
-    """Time series of a run (low-level rate) and per-solve records (MPC rate)."""
+    """Time series of a run (low-level rate) and per-solve records (MPC rate).
+
+    Held in memory by default. A streamed log (:meth:`streaming`) writes its rows to disk every
+    ``chunk_steps`` plant steps (:class:`wbmpc.io.logs.LogWriter`) and empties its lists, per-solve
+    ``timings`` included (``plans`` are not kept); after the run :attr:`path` is the consolidated ``.npz``
+    log, and :meth:`arrays` and :meth:`run_log` read it from there.
+    """
 
     t: list = field(default_factory=list)
     q: list = field(default_factory=list)
@@ -169,6 +261,10 @@ class ClosedLoopLog:
     foot_height: list = field(default_factory=list)
     plan_contact: list = field(default_factory=list)
     hold: list = field(default_factory=list)
+    path: Path | None = field(default=None, repr=False)  # the .npz log on disk, once a streamed run ends
+    writer: LogWriter | None = field(default=None, repr=False)  # streaming: where the chunks go
+    chunk_steps: int = 0  # streaming: plant steps per chunk
+    summarize: Callable[[Mapping], dict] | None = field(default=None, repr=False)  # set by the run
 
     SOLVE_COLUMNS = (
         "solve_t",
@@ -189,12 +285,32 @@ class ClosedLoopLog:
         "hold",
     )
 
+    @classmethod
+    def streaming(cls, path, chunk_steps: int, meta: dict | None = None) -> ClosedLoopLog:
+        """A log written to ``path`` (``.npz``) in chunks of ``chunk_steps`` plant steps as the run goes."""
+        if chunk_steps < 1:
+            raise ValueError(f"a log chunk must hold at least one plant step, got {chunk_steps}")
+        return cls(writer=LogWriter(path, meta), chunk_steps=chunk_steps)
+
+    @classmethod
+    def columns(cls) -> tuple[str, ...]:
+        """Names of the logged series (list fields; ``plans`` and per-solve ``timings`` dicts excluded)."""
+        skip = ("plans", "timings")
+        return tuple(f.name for f in fields(cls) if f.default_factory is list and f.name not in skip)
+
     def arrays(self) -> dict[str, np.ndarray]:
-        """Every series as a numpy array (plans and per-solve timing dicts excluded)."""
-        return {k: np.asarray(v) for k, v in self.__dict__.items() if k not in ("plans", "timings")}
+        """Every series as a numpy array (read from disk for a streamed log; empty if never logged)."""
+        if self.path is not None:
+            run = load_log(self.path)
+            return {k: np.asarray([]) for k in self.columns()} | run.solves | run.signals
+        return {k: np.asarray(getattr(self, k)) for k in self.columns()}
 
     def run_log(self, meta: dict | None = None) -> RunLog:
         """The columnar log (:class:`wbmpc.io.logs.RunLog`): low-level-rate signals, one row per solve."""
+        if self.path is not None:
+            run = load_log(self.path)
+            run.meta |= dict(meta or {})
+            return run
         arrays = self.arrays()
         n_solves = len(self.solve_t)
         solves = {k: arrays[k] for k in self.SOLVE_COLUMNS if len(arrays[k]) == n_solves}
@@ -203,6 +319,77 @@ class ClosedLoopLog:
         skip = set(self.SOLVE_COLUMNS)
         signals = {k: v for k, v in arrays.items() if k not in skip and len(v) == len(self.t)}
         return RunLog(signals=signals, solves=solves, meta=dict(meta or {}))
+
+    def tick(self, step: int) -> None:
+        """Called at each plant step before anything of it is logged: a streamed log writes a chunk."""
+        if self.writer is not None and step and step % self.chunk_steps == 0:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the rows held in memory as the next chunk and empty every list (streamed log)."""
+        self.writer.write_chunk(self.run_log())
+        for name in (*self.columns(), "plans", "timings"):
+            getattr(self, name).clear()
+
+    def finish(self, summarize: Callable[[Mapping], dict], interrupted: str | None = None) -> dict | None:
+        """End of the run: its summary, from memory or (streamed) from the consolidated log on disk.
+
+        Args:
+            summarize: ``f(columns) -> summary`` (columns by name, as :meth:`arrays`).
+            interrupted: What stopped a streamed run early (stored in its ``meta``), or ``None``.
+        """
+        if self.writer is None:
+            return summarize(self.arrays())
+        if interrupted is not None:
+            self._trim_unfinished_rows()
+        self.flush()
+        names = self.columns()
+        meta = self.writer.close(lambda columns: summarize(_Columns(columns, names)), interrupted)
+        self.path, self.writer = self.writer.path, None
+        return meta.get("summary")
+
+    def abort(self, exc: BaseException) -> None:
+        """An exception stopped the run: a streamed log writes what it has, marked partial (then re-raise)."""
+        if self.writer is None or self.writer.closed:
+            return
+        what = f"{type(exc).__name__}: {exc}"
+        if isinstance(exc, KeyboardInterrupt):
+            what = "KeyboardInterrupt (Ctrl-C)"
+        try:
+            self.finish(self.summarize or (lambda columns: None), interrupted=what)
+        except Exception as error:  # noqa: BLE001 - the original exception is the one to raise
+            exc.add_note(f"the partial log {self.writer.path} could not be written: {error!r}")
+
+    def _trim_unfinished_rows(self) -> None:
+        """Drop the rows an interruption left half-appended (a table's columns end at its shortest)."""
+        solve_columns = [k for k in self.SOLVE_COLUMNS if getattr(self, k)]
+        signal_columns = [k for k in self.columns() if k not in self.SOLVE_COLUMNS and getattr(self, k)]
+        for names in (solve_columns, signal_columns):
+            n = min((len(getattr(self, k)) for k in names), default=0)
+            for k in names:
+                del getattr(self, k)[n:]
+        del self.timings[len(self.solve_t) :]
+        del self.plans[len(self.solve_t) :]
+
+
+class _Columns(Mapping):
+    """Columns read from disk, with the log's never-filled series as empty arrays (as in memory)."""
+
+    def __init__(self, columns: Mapping, names: Sequence[str]):
+        self._columns, self._names = columns, tuple(names)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name in self._columns:
+            return self._columns[name]
+        if name in self._names:
+            return np.asarray([])
+        raise KeyError(name)
+
+    def __iter__(self):
+        return iter(dict.fromkeys((*self._names, *self._columns)))
+
+    def __len__(self) -> int:
+        return len(dict.fromkeys((*self._names, *self._columns)))
 
 
 @dataclass
@@ -216,8 +403,17 @@ class ClosedLoopResult:
         return self.log.run_log({"summary": self.summary})
 
     def save(self, path) -> str:
-        """Write the columnar log (``.npz``, see :mod:`wbmpc.io.logs`); returns the path."""
-        return str(save_log(self.run_log(), path))
+        """Write the columnar log (``.npz``, see :mod:`wbmpc.io.logs`); returns the path.
+
+        A streamed run's log is already on disk (``result.log.path``): it is copied.
+        """
+        if self.log.path is None:
+            return str(save_log(self.run_log(), path))
+        target = Path(path) if Path(path).suffix == ".npz" else Path(f"{path}.npz")
+        if target.resolve() != self.log.path.resolve():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(self.log.path, target)
+        return str(target)
 
 
 def run_closed_loop(
@@ -226,6 +422,8 @@ def run_closed_loop(
     q0: np.ndarray | None = None,
     progress: bool = True,
     keep_plans: bool = False,
+    log_path: str | Path | None = None,
+    log_chunk: float = 1.0,
 ) -> ClosedLoopResult:
     """Simulate the MPC in closed loop on the rigid-contact plant.
 
@@ -234,23 +432,76 @@ def run_closed_loop(
         config: Run settings.
         q0: Initial configuration; the robot's nominal pose by default (feet on the ground).
         progress: Show a tqdm progress bar.
-        keep_plans: Keep every MPC plan in the log (memory heavy; for replays of predictions).
+        keep_plans: Keep every MPC plan in the log (memory heavy; for replays of predictions; not with
+            ``log_path``).
+        log_path: Stream the log to this ``.npz`` file as the run goes (memory stays bounded; see
+            :mod:`wbmpc.io.logs`): if the run is interrupted (Ctrl-C, an exception) the log written so far
+            is consolidated there, marked ``meta["partial"]``, and the exception goes on. ``None``: the
+            log stays in memory (``result.save(path)`` writes it).
+        log_chunk: Simulated time [s] per chunk written to disk with ``log_path``.
 
     Returns:
         The log, a summary dict (see :func:`summarize`) and whether the robot fell.
     """
     config = config or ClosedLoopConfig()
-    if config.gait is None:
-        return _run(mpc, config, q0, progress, keep_plans)
+    if log_path is None:
+        log = ClosedLoopLog()
+    else:
+        if keep_plans:
+            raise ValueError("keep_plans needs the in-memory log: plans are not streamed (log_path)")
+        if not log_chunk > 0:
+            raise ValueError(f"log_chunk must be a duration > 0 [s], got {log_chunk!r}")
+        chunk_steps = max(1, round(log_chunk / config.plant_dt))
+        meta = {"requested_duration_s": config.duration, "chunk_s": chunk_steps * config.plant_dt}
+        log = ClosedLoopLog.streaming(log_path, chunk_steps, meta)
     mpc_gait = mpc.config.gait
-    mpc.config = replace(mpc.config, gait=config.gait)  # one schedule for the MPC and the plant
+    if config.gait is not None:
+        mpc.config = replace(mpc.config, gait=config.gait)  # one schedule for the MPC and the plant
     try:
-        return _run(mpc, config, q0, progress, keep_plans)
+        with _DeferredInterrupt() as interrupt:
+            return _run(mpc, config, q0, progress, keep_plans, log, interrupt)
+    except BaseException as exc:  # Ctrl-C or an error: a streamed log keeps what ran (then re-raise)
+        log.abort(exc)
+        raise
     finally:
         mpc.config = replace(mpc.config, gait=mpc_gait)
 
 
-def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
+class _DeferredInterrupt:
+    """Ctrl-C during a run raises ``KeyboardInterrupt`` at the next plant step, not inside a solve.
+
+    CasADi polls for Ctrl-C while it solves and turns it into a solver error, which the MPC counts as a
+    failed solve: the run went on and the interrupt was lost. A second Ctrl-C raises at once. Only in the
+    main thread and with Python's default handler installed (otherwise nothing changes).
+    """
+
+    def __init__(self):
+        self.requested = False
+        self._previous = None
+
+    def __enter__(self) -> _DeferredInterrupt:
+        main = threading.current_thread() is threading.main_thread()
+        if main and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def check(self) -> None:
+        """Raise ``KeyboardInterrupt`` if Ctrl-C came since the last check."""
+        if self.requested:
+            self.requested = False
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc_info) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=None) -> ClosedLoopResult:
     robot = mpc.robot
     schedule = mpc.config.gait
     model, data = robot.model, robot.model.createData()
@@ -262,8 +513,12 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
     kp, kd = _joint_gains(robot, config)
     low = LowLevelController(kp, kd, torque_limits=robot.joint_torque_limits)
     sensor = StateSensor(model, per_low * config.plant_dt, config.sensor_noise, config.velocity_cutoff_hz)
+    estimator = None
+    if config.state == "estimated":
+        estimator = EstimatedState(
+            robot, schedule, per_low * config.plant_dt, config.hardware, config.velocity_cutoff_hz
+        )
     ee_id = robot.frame_id(robot.ee_frame) if robot.has_arm else None
-    log = ClosedLoopLog()
     mpc.reset()
     arm_reference = config.arm_reference
     if ee_id is not None and arm_reference is not None and arm_reference.center is None:
@@ -275,14 +530,31 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
     tau = np.zeros(robot.nj)
     ee_ref = np.full(3, np.nan)
     q_meas, v_meas = sensor.measure(state.q, state.v)
+    if estimator is not None:
+        q_meas, v_meas = estimator.reset(state.q, state.v)
     pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
     busy_until = 0  # plant step before which no new solve can start (the solver is working)
     cmd = _commands(config, 0.0)
     scene_names = plant.body_names if pybullet else []
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
 
+    def run_summary(columns: Mapping, fell: bool) -> dict:  # columns from memory or the streamed file
+        summary = summarize(mpc, columns, config, fell, low.violations, plant)
+        summary["diagnostics"] = reporter.summary()
+        summary["scene_bodies"] = list(scene_names)
+        summary["state"] = config.state
+        summary["hardware"] = None if config.hardware is None else config.hardware.describe()
+        if estimator is not None and len(columns["t"]):
+            summary["estimate_error"] = estimate_errors(*(columns[k] for k in ("q", "v", "q_meas", "v_meas")))
+        return summary
+
+    log.summarize = lambda columns: run_summary(columns, False)  # an interrupted run's partial log
+
     bar = _progress(n_steps // per_mpc, progress)
     for step in range(n_steps):
+        log.tick(step)  # a streamed log writes a chunk to disk and empties its lists
+        if interrupt is not None:
+            interrupt.check()  # Ctrl-C
         t = step * config.plant_dt
         q, v = state.q, state.v
         contact = schedule.contact(t)
@@ -290,7 +562,7 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
             low.update(pending[1])
             pending = None
         if step % per_mpc == 0 and step >= busy_until:
-            if sensor.is_ground_truth:
+            if sensor.is_ground_truth and estimator is None:
                 q_meas, v_meas = q.copy(), v.copy()
             cmd = _commands(config, t)
             commands = Commands(
@@ -339,7 +611,10 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
                 fell = True
                 break
         if step % per_low == 0:
-            q_meas, v_meas = sensor.measure(q, v)  # ground truth: plain copies
+            if estimator is None:
+                q_meas, v_meas = sensor.measure(q, v)  # ground truth: plain copies
+            else:
+                q_meas, v_meas = estimator.measure(q, v, t)
             tau = low.torque(t, q_meas, v_meas)
             log.t.append(t)
             log.q.append(q.copy())
@@ -377,9 +652,7 @@ def _run(mpc, config, q0, progress, keep_plans) -> ClosedLoopResult:
             break
     if bar is not None:
         bar.close()
-    summary = summarize(mpc, log, config, fell, low.violations, plant)
-    summary["diagnostics"] = reporter.summary()
-    summary["scene_bodies"] = list(scene_names)
+    summary = log.finish(lambda columns: run_summary(columns, fell))
     if hasattr(plant, "close"):
         plant.close()
     return ClosedLoopResult(log=log, summary=summary, fell=fell)
@@ -442,8 +715,9 @@ def make_plant(robot, config: ClosedLoopConfig):
     if config.plant == "pybullet":
         from wbmpc.sim.pybullet_plant import PyBulletPlant
 
+        options = {} if config.hardware is None else config.hardware.plant_options(robot)
         return PyBulletPlant(
-            robot, dt=config.plant_dt, ground_friction=config.ground_friction, scene=config.scene
+            robot, dt=config.plant_dt, ground_friction=config.ground_friction, scene=config.scene, **options
         )
     raise ValueError(f"unknown plant {config.plant!r}; available: 'rigid', 'pybullet'")
 
@@ -510,19 +784,24 @@ def blasfeo_record() -> dict:
 
 def summarize(
     mpc: WholeBodyMPC,
-    log: ClosedLoopLog,
+    log: ClosedLoopLog | Mapping[str, np.ndarray],
     config: ClosedLoopConfig,
     fell: bool,
     torque_violations: int,
     plant: ContactPlant | None = None,
 ) -> dict:
-    """Key numbers of a run: solve-time statistics (in-process), convergence, tracking, safety."""
-    arrays = log.arrays()
+    """Key numbers of a run: solve-time statistics (in-process), convergence, tracking, safety.
+
+    ``log`` is the run's log or its columns by name (:meth:`ClosedLoopLog.arrays`).
+    """
+    arrays = log if isinstance(log, Mapping) else log.arrays()
     solve_ms = 1e3 * arrays["solve_time"]
     warm = solve_ms[1:] if solve_ms.size > 1 else solve_ms
     iters = arrays["iterations"][1:] if arrays["iterations"].size > 1 else arrays["iterations"]
     ee_err = (
-        np.linalg.norm(arrays["ee_position"] - arrays["ee_reference"], axis=1) if len(log.t) else np.array([])
+        np.linalg.norm(arrays["ee_position"] - arrays["ee_reference"], axis=1)
+        if len(arrays["t"])
+        else np.array([])
     )
     ee_err = ee_err[np.isfinite(ee_err)]
     q = arrays["q"]
@@ -533,7 +812,7 @@ def summarize(
         "compiled": mpc.config.compiled,
         "plant": config.plant,
         "nodes": mpc.n_nodes,
-        "duration_s": float(log.t[-1]) if log.t else 0.0,
+        "duration_s": float(arrays["t"][-1]) if len(arrays["t"]) else 0.0,
         "requested_duration_s": config.duration,
         "base_velocity_cmd": list(config.base_velocity),
         "mpc_solves": int(len(solve_ms)),

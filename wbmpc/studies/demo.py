@@ -1,7 +1,8 @@
 """The main job: B1 + Z1 trotting at 0.2 m/s for 10 s while the arm tracks a reference reaching low and high.
 
 Run with ``bash scripts/demo.sh`` (sets up the environment) or ``python -m wbmpc.studies.demo --help``.
-Writes under ``data/output/demo/``: ``summary.json``, ``log.npz``, PNG plots and a self-contained meshcat
+Writes under ``data/output/demo/``: ``summary.json``, ``log.npz`` (streamed during the run: Ctrl-C leaves
+a readable partial log and exits with status 130), PNG plots and a self-contained meshcat
 replay ``replay.html``. With ``--save-results`` the summary is also copied to
 ``data/results/demo_summary.json`` (the committed copy of the full default run).
 """
@@ -16,6 +17,7 @@ import time
 from pathlib import Path
 
 from wbmpc.quick import pick
+from wbmpc.studies.cli_checks import MAX_NODES
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -102,6 +104,8 @@ def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -
             parser.error(f"{flag} must be a finite number > 0, got {value}")
     if args.nodes < 3:
         parser.error(f"--nodes must be >= 3 (nodes including the terminal one), got {args.nodes}")
+    if args.nodes > MAX_NODES:
+        parser.error(f"--nodes must be <= {MAX_NODES} (the paper uses 15), got {args.nodes}")
     for flag, value in {"--kp": args.kp, "--kd": args.kd}.items():
         if not 0 <= value < float("inf"):
             parser.error(f"{flag} must be a finite number >= 0, got {value}")
@@ -155,14 +159,16 @@ def main(argv: list[str] | None = None) -> dict:
     )
     if args.no_arm_task or not robot.has_arm:
         loop.arm_reference = None
-    result = run_closed_loop(mpc, loop, progress=not args.quiet)
-    summary = result.summary
-    print_summary(summary)
-
     out = args.output
     out.mkdir(parents=True, exist_ok=True)
+    log_path = out / "log.npz"  # columnar run log (wbmpc.io.logs) streamed as the run goes: load_log reads it
+    try:
+        result = run_closed_loop(mpc, loop, progress=not args.quiet, log_path=log_path)
+    except KeyboardInterrupt:
+        raise SystemExit(_interrupted(log_path)) from None
+    summary = result.summary
+    print_summary(summary)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    result.save(out / "log.npz")  # columnar run log (wbmpc.io.logs), read with wbmpc.io.logs.load_log
     _figures(result, robot, out, args.speed)
     if not args.no_replay:
         _replay(result, robot, out)
@@ -173,6 +179,18 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"summary copied to {target}")
     print(f"outputs in {out}")
     return summary
+
+
+def _interrupted(log_path: Path) -> int:
+    """Ctrl-C during the run: one line on stderr naming the partial log; the exit status (130, as SIGINT)."""
+    from wbmpc.io.logs import load_log
+
+    try:
+        reached = f"at t = {load_log(log_path).meta['t_reached']:.2f} s"
+    except Exception as exc:  # noqa: BLE001 - the message must come out whatever the log's state
+        reached = f"(no readable log: {exc})"
+    print(f"demo interrupted {reached}: partial log in {log_path}", file=sys.stderr)
+    return 130
 
 
 def exit_status(summary: dict) -> int:
