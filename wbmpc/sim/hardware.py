@@ -16,6 +16,20 @@ Two ways to use it:
   state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
+What the mismatches do to the MPC (issue 13, ``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
+
+* Without the rotor inertia, the 3 ms torque latency (and, less, the sensor noise) destabilises the legs'
+  damping loop ``Kd (v_des - v)`` behind the 50 Hz filter in swing: calf speeds beyond their limits, torques
+  at 140 N m. The reflected rotor inertia (``leg_armature``) lowers the swing legs' crossover ``Kd / I``
+  enough that the same latency does no visible harm. Motor friction is harmless.
+* The base CoM offset makes the nominal MPC lean back (pitch -0.18 rad trotting, rear calves at their torque
+  limit, the base drifting backwards instead of trotting forward: ``data/hardware/emulated_b1_stand_trot``).
+  The offset identified from a log (:func:`wbmpc.studies.hardware_logs.identify_com_offset`) put into the
+  MPC's model and force targets (:func:`wbmpc.studies.hardware_logs.shift_base_com`) removes the lean: the
+  paper's fix.
+* ``delay="measured"`` on a machine where solves take ~10 MPC periods (this 2-core one) adds a plan ~0.1 s
+  old on top; the fixed delay separates the robot's mismatches from the machine's speed.
+
 :class:`EstimatedState` is the estimator in the loop: at the low-level rate it synthesises an IMU reading
 from two consecutive true states (:func:`wbmpc.estimation.synthesize_imu`) and encoder readings, takes the
 contacts from the gait schedule (:func:`wbmpc.estimation.contact_trust`) and runs
