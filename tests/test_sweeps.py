@@ -138,3 +138,40 @@ def test_cli_help(capsys):
     assert exit_.value.code == 0
     text = capsys.readouterr().out
     assert all(option in text for option in ("--scheduler", "--workers", "--output", "--quick"))
+
+
+@pytest.mark.parametrize("study", ["payload", "nodes", "time_steps"])
+def test_quick_study_grids_run_on_the_engine(client, tmp_path, study):
+    """The payload, node-count and time-step studies (quick grids: in-process solver, short PyBullet runs)
+    run as sweeps and give one complete row per case, and their figures."""
+    pytest.importorskip("pybullet")
+    make_cases, fn, _ = sweeps.STUDIES[study]
+    cases = make_cases(True)
+    run = sweeps.run_sweep(cases, fn, tmp_path / f"{study}.csv", client=client, progress=False)
+    assert "error" not in run.counts and "worker-died" not in run.counts, run.rows
+    rows = sweeps.read_table(tmp_path / f"{study}.csv")
+    assert len(rows) == len(cases)
+    for row in rows:
+        assert 0.0 < row["converged_fraction"] <= 1.0 and row["sim_duration_s"] > 0.3
+    if study == "payload":
+        assert {(r["walking"], r["fell"]) for r in rows} == {(False, False), (True, False)}
+        assert all(r["load_displacement_m"] is not None for r in rows)
+    elif study == "nodes":
+        assert sorted(r["nodes"] for r in rows) == [5, 8] and all(r["solve_ms_median"] > 0 for r in rows)
+        assert all(r["ee_rms_cm"] is not None for r in rows)
+    else:
+        assert {r["grid"] for r in rows} == {"adaptive", "uniform"}
+        assert all(r["drift_cm_per_s"] >= 0 for r in rows)
+        assert rows[0]["horizon_s"] == pytest.approx(rows[1]["horizon_s"])  # same horizon, other steps
+    paths = sweeps.FIGURES[study](rows, tmp_path / "figures")
+    assert paths and all(p.stat().st_size > 5_000 for p in paths)
+
+
+def test_robustness_study_grids():
+    full = sweeps.STUDIES["robustness"][0](False)
+    # 11 magnitudes (0 to 1.0 m/s) x 2 directions x 8 phases x delay off/on x 3 seeds
+    assert len(full) == 11 * 2 * 8 * 2 * 3
+    assert sorted({c["magnitude"] for c in full}) == [round(0.1 * i, 1) for i in range(11)]
+    assert sorted({c["phase"] for c in full}) == [i / 8 for i in range(8)]
+    quick = sweeps.STUDIES["robustness"][0](True)
+    assert 0 < len(quick) <= 8 and all(c["quick"] for c in quick)

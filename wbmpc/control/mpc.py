@@ -132,14 +132,16 @@ class MPCConfig:
         cold_retry: After a failed warm-started solve, retry once from a cold start (same tick) before
             falling back to the previous plan.
         retry_max_iter: Iteration cap of that retry.
-        kick_recovery: Swing abort after a push [m/s]: when the measured horizontal base velocity differs
-            from the command by more than this, a swing in its first ``kick_recovery_phase`` is aborted: the
+        kick_recovery: Swing abort after a push [m/s]: when the measured horizontal base velocity jumps off
+            the last plan's by more than this, a swing in its first ``kick_recovery_phase`` is aborted: the
             foot is brought down at ``touchdown_speed`` (at least ``touchdown_time``) and planned in stance
-            until its nominal touchdown. A trot otherwise leaves one diagonal pair on the ground for a whole
-            swing, over which the base behaves like an inverted pendulum on a line and cannot be slowed
-            across it. ``None`` disables it.
+            until its nominal touchdown (a push at a lift-off). A trot
+            otherwise leaves one diagonal pair on the ground for a whole swing, over which the base is an
+            inverted pendulum on a line that cannot be slowed across it. ``None`` disables it.
         kick_recovery_phase: Swing phase (fraction of the swing) below which a swing is aborted.
         touchdown_speed: Downward foot speed [m/s] of an aborted swing; touchdown_time: its minimum [s].
+        kick_recovery_hold: Also abort the early swings while recovering (base velocity further than
+            ``kick_recovery`` from the command); False: only the swings in progress when the push is detected.
     """
 
     gait: Gait | GaitSchedule = field(default_factory=lambda: make_gait("trot", 0.8))
@@ -162,9 +164,10 @@ class MPCConfig:
     cold_retry: bool = True
     retry_max_iter: int = 100
     kick_recovery: float | None = 0.3
-    kick_recovery_phase: float = 0.3
+    kick_recovery_phase: float = 0.15
     touchdown_speed: float = 0.3
     touchdown_time: float = 0.03
+    kick_recovery_hold: bool = False
 
     def __post_init__(self):
         for name in ("dt_min", "dt_max", "mu", "tol", "mu_init_warm", "mu_init_cold"):
@@ -294,6 +297,7 @@ class WholeBodyMPC:
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0, "holds": 0}
         self.stats["swing_aborts"] = 0
         self.aborted_swings: dict[int, float] = {}  # foot -> nominal touchdown time [s] of an aborted swing
+        self.recovering = False  # after a push, until the base velocity is back near the command
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.last_inputs: dict | None = None
@@ -661,6 +665,7 @@ class WholeBodyMPC:
         """Forget the previous plan (the next solve is a cold start) and any aborted swing."""
         self.previous = None
         self.aborted_swings = {}
+        self.recovering = False
 
     def recovery_parameters(
         self, params: dict, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands: Commands
@@ -675,8 +680,14 @@ class WholeBodyMPC:
             now = cfg.gait.sample(np.array([t]))
             R_base = pin.Quaternion(q_hat[3:7]).normalized().toRotationMatrix()
             R_heading = pin.rpy.rpyToMatrix(0.0, 0.0, heading(q_hat))
-            error = (R_base @ v_hat[0:3] - R_heading @ commands.base_linear_velocity)[0:2]
-            if np.linalg.norm(error) > cfg.kick_recovery:
+            error = np.linalg.norm((R_base @ v_hat[0:3] - R_heading @ commands.base_linear_velocity)[0:2])
+            pushed = False
+            if self.previous is not None:  # a push: the measured base velocity jumped off the last plan
+                v_plan = _interp_rows(np.array([t]), self.previous.node_times, self.previous.v)[0]
+                pushed = bool(np.linalg.norm(v_hat[0:2] - v_plan[0:2]) > cfg.kick_recovery)
+            # Recovering until the base velocity is back near the command (a commanded speed-up is no push).
+            self.recovering = (self.recovering or pushed) and error > cfg.kick_recovery
+            if pushed or (self.recovering and cfg.kick_recovery_hold):
                 for i in range(robot.n_feet):
                     phase = now.swing_phase[i, 0]
                     early = not now.contact[i, 0] and phase < cfg.kick_recovery_phase

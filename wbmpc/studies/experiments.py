@@ -47,6 +47,7 @@ from wbmpc.quick import quick_mode
 from wbmpc.sim.closed_loop import ClosedLoopConfig, ClosedLoopResult, machine_description, run_closed_loop
 from wbmpc.sim.disturbances import Kick, Push
 from wbmpc.sim.pybullet_plant import Box, Payload, Wall
+from wbmpc.studies import cli_checks
 from wbmpc.viz.plots import save_figure
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -719,6 +720,10 @@ def main(argv: list[str] | None = None) -> dict:
     quick = args.quick or quick_mode()
     directory = REPO_ROOT / ("data/output/sim" if quick else "data/results/sim")
     logs = None if args.no_logs else REPO_ROOT / "data/output/sim/logs"
+    for label, folder in (("results folder", directory), ("figure folder", REPO_ROOT / "data/output/sim")):
+        cli_checks.writable_folder(parser, label, folder)
+    if logs is not None:
+        cli_checks.writable_folder(parser, "log folder (or --no-logs)", logs)
     robot = load_b1_z1()
     out = {}
     for name in args.names:

@@ -647,6 +647,442 @@ def warm_closed_loop_cache(cases: list[dict]) -> None:
         mpc.compiled_nlp = codegen.build(mpc.ocp, tuple(mpc.config.compile_flags), progress=False)
 
 
+# ----------------------------------------------- PyBullet studies: robustness, payload, nodes, time steps
+# The experiments' settings (wbmpc.studies.experiments): PyBullet at 2 kHz, MPC at 80 Hz, compiled Fatrop with
+# 15 nodes (quick: in-process, 10 nodes), 500 Hz interpolation, pure feed-forward torques, ground truth.
+_ROBOT: dict = {}  # per worker process: the B1 + Z1 model (the experiments' MPC cache is keyed by it)
+ROBUSTNESS_MAGNITUDES = tuple(round(0.1 * i, 1) for i in range(11))  # 0 to 1.0 m/s
+ROBUSTNESS_PHASES = tuple(i / 8 for i in range(8))  # fractions of the trot period after a lift-off
+DIRECTIONS = {"lateral": (0.0, 1.0, 0.0), "forward": (1.0, 0.0, 0.0)}
+# Sensor noise of the seeded cases: encoders, a state estimator's base errors (std per channel).
+NOISE = {
+    "joint_position": 1e-3,
+    "joint_velocity": 0.05,
+    "base_position": 2e-3,
+    "base_orientation": 2e-3,
+    "base_velocity": 0.02,
+}
+
+
+def _experiment_setup(case: dict, **mpc_kwargs):
+    """(experiments module, robot, nodes, MPC config) for a PyBullet case (``quick``, ``nodes``, ``compiled``
+    override the experiments' defaults: compiled with 15 nodes, quick in-process with 10)."""
+    from dataclasses import replace
+
+    from wbmpc.model.robot import load_b1_z1
+    from wbmpc.studies import experiments as ex
+
+    if "robot" not in _ROBOT:
+        _ROBOT["robot"] = load_b1_z1()
+    quick, robot, nodes, config = ex._setup(bool(case.get("quick", False)), _ROBOT["robot"], **mpc_kwargs)
+    nodes = int(case.get("nodes", nodes))
+    if "compiled" in case:
+        config = replace(config, compiled=bool(case["compiled"]))
+    # MPC options a case may switch (comparisons)
+    for name in ("kick_recovery", "kick_recovery_phase", "kick_recovery_hold"):
+        if name in case and hasattr(config, name):
+            config = replace(config, **{name: case[name]})
+    return ex, robot, nodes, config
+
+
+def _sensor(case: dict):
+    """Sensor noise of a case: none for ``seed`` None or negative, else :data:`NOISE` with that seed."""
+    from wbmpc.sim.sensing import SensorNoise
+
+    seed = case.get("seed")
+    if seed is None or seed < 0:
+        return None
+    return SensorNoise(**NOISE, seed=int(seed))
+
+
+def _delay(case: dict):
+    delay = case.get("delay", 0.0)
+    return "off" if delay in (None, 0, 0.0, "off") else delay
+
+
+def _solver_results(result) -> dict:
+    s = result.summary
+    diagnostics = s.get("diagnostics") or {}
+    return {
+        "converged_fraction": s["converged_fraction"],
+        "fallbacks": s["fallbacks"],
+        "iterations_mean": s["iterations_mean"],
+        "iterations_max": s["iterations_max"],
+        "solve_ms_median": s["solve_ms"]["median"],
+        "solve_ms_p95": s["solve_ms"]["p95"],
+        "failure_reasons": diagnostics.get("failure_reasons") or {},
+        "sim_duration_s": s["duration_s"],
+    }
+
+
+def robustness_case(case: dict) -> dict:
+    """A base kick while trotting in place in PyBullet (as ``experiments.robustness_sweep``).
+
+    Parameters read (defaults): ``magnitude`` [m/s] of the velocity kick (a
+    :class:`~wbmpc.sim.disturbances.Kick`), ``direction`` ("lateral": world +y, "forward": +x), ``phase``
+    (fraction of the 0.8 s trot period after the FR/RL pair's lift-off at 1.2 s; 0.5: the FL/RR pair's),
+    ``delay`` (0: off, else seconds of fixed computation delay), ``seed`` (None: ground truth, else
+    :data:`NOISE` with that seed, and the 50 Hz joint-velocity filter), ``quick`` (False: compiled solver;
+    True: in-process), ``nodes`` (15), ``after`` [s] simulated after the kick (full 2.0, quick 0.5),
+    ``kick_recovery`` (the MPC's default).
+
+    Results: ``fell``, ``max_tilt_rad``, peak base speed along the kick, ``recovery_time_s`` (speed along the
+    kick below 0.1 m/s for good, ``None`` if never), lateral/forward displacement, peak calf torque over its
+    limit after the kick (all four calves, applied torques, and the plan's first-node torques), solver
+    numbers, and the MPC's swing aborts.
+    """
+    import numpy as np
+    import pinocchio as pin
+
+    from wbmpc.sim.disturbances import Kick
+
+    # 15 nodes in quick mode too (in-process): a 10-node horizon (0.37 s) falls short of the swing it aborts.
+    ex, robot, nodes, config = _experiment_setup({"nodes": 15, **case}, gait=_trot())
+    quick = bool(case.get("quick", False))
+    magnitude = float(case.get("magnitude", 0.8))
+    direction = np.asarray(DIRECTIONS[case.get("direction", "lateral")])
+    t0 = 1.2  # the FR/RL pair lifts off (every 0.8 s), after 1.5 trot periods from the standing start
+    t_kick = t0 + float(case.get("phase", 0.0)) * ex.GAIT_PERIOD
+    after = float(case.get("after", 0.5 if quick else 2.0))
+    noise = _sensor(case)
+    loop = ex._base_loop(
+        duration=t_kick + after,
+        disturbances=(Kick(t_kick, tuple(magnitude * direction)),) if magnitude > 0 else (),
+        delay=_delay(case),
+        sensor_noise=noise,
+        velocity_cutoff_hz=50.0 if noise is not None else None,
+    )
+    mpc = ex._mpc(robot, nodes, config)
+    mpc.verbose = False
+    aborts_before = mpc.stats.get("swing_aborts", 0)
+    result = ex.run_closed_loop(mpc, loop, progress=False)
+    a = result.log.arrays()
+    t = a["t"]
+    v_world = np.array(
+        [pin.Quaternion(q[3:7]).toRotationMatrix() @ v[:3] for q, v in zip(a["q"], a["v"], strict=True)]
+    )
+    along = v_world @ direction
+    after_kick = t >= t_kick
+    calves = [i for i, n in enumerate(robot.joint_names) if "calf" in n]
+    limits = robot.joint_torque_limits[calves]
+    slow = np.abs(along) < 0.1
+    recovery = None
+    if after_kick.any() and not result.fell:
+        # the first time after the kick from which the speed along the kick stays below 0.1 m/s
+        fast = np.nonzero(after_kick & ~slow)[0]
+        last_fast = fast[-1] if fast.size else np.nonzero(after_kick)[0][0] - 1
+        if last_fast + 1 < len(t):
+            recovery = float(t[last_fast + 1] - t_kick)
+    solve_t = np.asarray(a["solve_t"])
+    plan_tau = np.asarray(a["plan_tau"])
+    planned = plan_tau[solve_t >= t_kick][:, calves] if plan_tau.size else np.zeros((0, len(calves)))
+    k0 = np.nonzero(after_kick)[0][0] if after_kick.any() else len(t)
+    return {
+        "fell": bool(result.fell),
+        "max_tilt_rad": result.summary["max_tilt_rad"],
+        "peak_speed_along_kick": float(np.max(np.abs(along[after_kick]))) if after_kick.any() else None,
+        "recovery_time_s": recovery,
+        "displacement_along_kick_m": float((a["q"][-1, :3] - a["q"][k0 - 1 if k0 else 0, :3]) @ direction),
+        "calf_torque_ratio": float(np.max(np.abs(a["tau"][after_kick][:, calves]) / limits))
+        if after_kick.any()
+        else None,
+        "calf_torque_ratio_plan": float(np.max(np.abs(planned) / limits)) if planned.size else None,
+        "swing_aborts": int(mpc.stats.get("swing_aborts", 0) - aborts_before),
+        "t_kick": t_kick,
+        **_solver_results(result),
+    }
+
+
+def _trot():
+    from wbmpc.ocp.gait import make_gait
+    from wbmpc.studies.experiments import GAIT_PERIOD
+
+    return make_gait("trot", GAIT_PERIOD)
+
+
+def warm_experiment_cache(cases: list[dict]) -> None:
+    """Warm-up of the PyBullet studies: build (or load) the compiled library of each horizon once."""
+    from wbmpc.solver import codegen
+
+    for nodes in sorted({int(_experiment_setup(c)[2]) for c in cases if _experiment_setup(c)[3].compiled}):
+        _, robot, _, config = _experiment_setup({"nodes": nodes})
+        from wbmpc.ocp import OCP, OCPSettings
+
+        codegen.build(OCP(robot, OCPSettings(n_nodes=nodes)), tuple(config.compile_flags), progress=False)
+
+
+def _robustness_study(quick: bool) -> list[dict]:
+    if quick:  # the lift-off kick and a mid-swing one, both directions at 0.8 m/s, no delay, no noise
+        return grid(
+            magnitude=[0.8], direction=["lateral", "forward"], phase=[0.0, 0.25], delay=[0.0], seed=[None],
+            quick=[True],
+        )  # fmt: skip
+    return grid(
+        magnitude=list(ROBUSTNESS_MAGNITUDES),
+        direction=list(DIRECTIONS),
+        phase=list(ROBUSTNESS_PHASES),
+        delay=[0.0, 0.0125],
+        seed=[0, 1, 2],
+    )
+
+
+def payload_case(case: dict) -> dict:
+    """Pull a tethered sliding load (``experiments.pulling_load``): ``mass`` [kg], ``walking`` (trot
+    backwards at 0.1 m/s; False: stand, the arm pulls back at 5 cm/s), ``quick``. Success: no fall and the
+    load moves at least half the commanded displacement."""
+    ex, robot, nodes, config = _experiment_setup(case)
+    quick = bool(case.get("quick", False))
+    mass = float(case.get("mass", 10.0))
+    walking = bool(case.get("walking", True))
+    result, force = ex._pull_run(robot, nodes, config, quick, mass, walking, progress=False)
+    report = ex._pull_report(result, walking, mass, force)
+    report.pop("mass_kg", None)
+    report.pop("walking", None)
+    return {
+        **report,
+        "commanded_force_n": [float(f) for f in report["commanded_force_n"]],
+        **_solver_results(result),
+    }
+
+
+def _payload_study(quick: bool) -> list[dict]:
+    if quick:
+        return grid(mass=[10.0], walking=[False, True], quick=[True])
+    return grid(mass=[float(m) for m in range(10, 32, 2)], walking=[False, True])
+
+
+def nodes_case(case: dict) -> dict:
+    """Arm tracking while trotting at 0.2 m/s (``experiments.arm_tracking``) with ``nodes`` nodes, the same
+    10-100 ms geometric steps: solve time and tracking. ``duration`` [s] (full 4.0, quick 0.6), ``quick``."""
+    from wbmpc.control.arm_task import ArmReference
+
+    ex, robot, nodes, config = _experiment_setup(case, gait=_trot())
+    quick = bool(case.get("quick", False))
+    loop = ex._base_loop(
+        duration=float(case.get("duration", 0.6 if quick else 4.0)),
+        base_velocity=(0.2, 0.0, 0.0),
+        arm_reference=ArmReference(ramp=0.3 if quick else 1.0),
+    )
+    mpc = ex._mpc(robot, nodes, config)
+    mpc.verbose = False
+    result = ex.run_closed_loop(mpc, loop, progress=False)
+    s = result.summary
+    return {
+        "fell": bool(result.fell),
+        "max_tilt_rad": s["max_tilt_rad"],
+        "ee_rms_cm": None if s["ee_rms_m"] is None else 100 * s["ee_rms_m"],
+        "ee_max_error_cm": None if s["ee_max_error_m"] is None else 100 * s["ee_max_error_m"],
+        "speed_m_per_s": s["distance_travelled_m"] / max(s["duration_s"], 1e-9),
+        "solve_ms_mean": s["solve_ms"]["mean"],
+        "horizon_s": float(sum(mpc.time_steps())),
+        **_solver_results(result),
+    }
+
+
+def _nodes_study(quick: bool) -> list[dict]:
+    if quick:
+        return grid(nodes=[5, 8], quick=[True])
+    return grid(nodes=[5, 10, 15, 20, 25, 30])
+
+
+def time_steps_case(case: dict) -> dict:
+    """Base drift trotting in place with computation delay (``experiments.time_steps_drift``): ``grid``
+    ("adaptive": geometric 10-100 ms, "uniform": the same horizon in equal steps, 40 ms with the default 15
+    nodes; quick: 10 nodes), ``delay`` [s]
+    (0: off), ``seed`` (sensor noise, None: ground truth), Kd = 5, 50 Hz velocity filter; ``duration``
+    (full 10 s, quick 0.6 s)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from wbmpc.ocp.time_grid import geometric_time_steps
+
+    ex, robot, _, config = _experiment_setup(case, gait=_trot())
+    quick = bool(case.get("quick", False))
+    nodes = int(case.get("nodes", 10 if quick else 15))
+    uniform = float(sum(geometric_time_steps(nodes, 0.01, 0.1))) / (nodes - 1)  # same horizon (N = 15: 40 ms)
+    dt_min, dt_max = {"adaptive": (0.01, 0.1), "uniform": (uniform, uniform)}[case.get("grid", "adaptive")]
+    config = replace(config, dt_min=dt_min, dt_max=dt_max)
+    loop = ex._base_loop(
+        duration=float(case.get("duration", 0.6 if quick else 10.0)),
+        kd=5.0,
+        delay=_delay(case),
+        velocity_cutoff_hz=50.0,
+        sensor_noise=_sensor(case),
+    )
+    mpc = ex._mpc(robot, nodes, config)
+    mpc.verbose = False
+    result = ex.run_closed_loop(mpc, loop, progress=False)
+    q = result.log.arrays()["q"]
+    d = result.summary["duration_s"] or 1.0
+    return {
+        "fell": bool(result.fell),
+        "drift_cm_per_s": float(100 * np.linalg.norm(q[-1, :2] - q[0, :2]) / d),
+        "drift_x_cm": float(100 * (q[-1, 0] - q[0, 0])),
+        "drift_y_cm": float(100 * (q[-1, 1] - q[0, 1])),
+        "max_tilt_rad": result.summary["max_tilt_rad"],
+        "horizon_s": float(sum(mpc.time_steps())),
+        **_solver_results(result),
+    }
+
+
+def _time_steps_study(quick: bool) -> list[dict]:
+    if quick:
+        return grid(grid=["adaptive", "uniform"], delay=[0.0125], seed=[0], quick=[True])
+    return grid(grid=["adaptive", "uniform"], delay=[0.0, 0.0125, 0.025, 0.05], seed=[0, 1, 2])
+
+
+# ------------------------------------------------------------------------------------------ study figures
+def robustness_figures(rows: list[dict], directory: str | Path) -> list[Path]:
+    """Heatmaps of a robustness table over kick magnitude x gait phase: survival (mean over seeds) and the
+    peak calf torque over its limit, one figure per direction (rows: delays; columns: the two). A table that
+    compares the swing abort on and off (a ``kick_recovery`` column with numbers and empty cells, empty
+    meaning off) gets one figure per setting: ``robustness_<direction>[_recovery_off|_recovery_<value>].png``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    done = [r for r in rows if r["status"] in ("ok", "fell")]
+    settings = sorted({r.get("kick_recovery") for r in done}, key=str)
+    compare = len(settings) > 1
+    paths = []
+    for direction in sorted({r.get("direction", "lateral") for r in done}):
+        for setting in settings:
+            mine = [
+                r
+                for r in done
+                if r.get("direction", "lateral") == direction and r.get("kick_recovery") == setting
+            ]
+            if not mine:
+                continue
+            suffix = "" if not compare else "_recovery_off" if setting is None else f"_recovery_{setting:g}"
+            tag = "" if not compare else ", swing abort off" if setting is None else ", swing abort on"
+            delays = sorted({r.get("delay") or 0.0 for r in mine})
+            n_m, n_p = len({r["magnitude"] for r in mine}), len({r["phase"] for r in mine})
+            fig = Figure(figsize=(2 * (1.8 + 0.75 * n_p), 0.9 + (1.0 + 0.4 * n_m) * len(delays)))
+            fig.set_layout_engine("constrained")
+            axes = fig.subplots(len(delays), 2, squeeze=False)
+            for i, delay in enumerate(delays):
+                cell = [r for r in mine if (r.get("delay") or 0.0) == delay]
+                label = "no delay" if not delay else f"delay {1e3 * delay:g} ms"
+                heatmap(cell, lambda r: float(r["status"] == "ok"), x="phase", y="magnitude", ax=axes[i, 0],
+                        cmap="RdYlGn", title=f"survival, {label}")  # fmt: skip
+                heatmap(cell, "calf_torque_ratio", x="phase", y="magnitude", ax=axes[i, 1], cmap="magma",
+                        title=f"peak calf torque / limit, {label}")  # fmt: skip
+                for ax in axes[i]:
+                    ax.images[0].set_clim(0.0, 1.0)
+                    ax.title.set_fontsize(9)
+                    ax.set(xlabel="gait phase of the kick", ylabel="kick [m/s]")
+            fig.suptitle(f"{direction} kick while trotting in place{tag}", fontsize=10)
+            path = directory / f"robustness_{direction}{suffix}.png"
+            fig.savefig(path, dpi=110)
+            paths.append(path)
+    return paths
+
+
+def robustness_report(rows: list[dict], up_to: float = 0.8) -> dict:
+    """Survival rates of a robustness table: overall, up to ``up_to`` m/s, per magnitude, at the lift-offs."""
+    done = [r for r in rows if r["status"] in ("ok", "fell")]
+
+    def rate(sel):
+        return None if not sel else sum(r["status"] == "ok" for r in sel) / len(sel)
+
+    return {
+        "cases": len(done),
+        "errors": len(rows) - len(done),
+        "survival": rate(done),
+        f"survival_up_to_{up_to:g}": rate([r for r in done if r["magnitude"] <= up_to + 1e-9]),
+        "survival_lift_off": rate([r for r in done if r["phase"] in (0.0, 0.5)]),
+        "survival_by_magnitude": {
+            f"{m:g}": rate([r for r in done if r["magnitude"] == m])
+            for m in sorted({r["magnitude"] for r in done})
+        },
+        "survival_by_direction": {
+            d: rate([r for r in done if r.get("direction") == d])
+            for d in sorted({r.get("direction") for r in done})
+        },
+        "falls": sorted(
+            [
+                (r.get("direction"), r["magnitude"], r["phase"], r.get("delay"), r.get("seed"))
+                for r in done
+                if r["status"] == "fell"
+            ],
+            key=str,
+        ),  # fmt: skip
+    }
+
+
+def time_steps_figures(rows: list[dict], directory: str | Path) -> list[Path]:
+    """Base drift over delay, adaptive vs uniform grid (mean and min-max over seeds)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    fig = Figure(figsize=(5.5, 3.2), layout="constrained")
+    ax = fig.subplots()
+    for g in ("adaptive", "uniform"):
+        mine = [r for r in rows if r.get("grid") == g and r.get("drift_cm_per_s") is not None]
+        delays = sorted({r["delay"] for r in mine})
+        vals = [[r["drift_cm_per_s"] for r in mine if r["delay"] == d] for d in delays]
+        if not delays:
+            continue
+        mean = np.array([np.mean(v) for v in vals])
+        lo = mean - np.array([np.min(v) for v in vals])
+        hi = np.array([np.max(v) for v in vals]) - mean
+        ax.errorbar(1e3 * np.array(delays), mean, yerr=[lo, hi], marker="o", capsize=3, label=g)
+    ax.set(xlabel="computation delay [ms]", ylabel="base drift [cm/s]", title="Adaptive vs uniform steps")
+    ax.legend(fontsize=8)
+    path = directory / "time_steps.png"
+    fig.savefig(path, dpi=110)
+    return [path]
+
+
+def _xy_figure(rows: list[dict], x: str, ys: tuple[str, ...], name: str, directory: str | Path, by=None):
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    fig = Figure(figsize=(5.5, 2.2 * len(ys)), layout="constrained")
+    axes = fig.subplots(len(ys), 1, squeeze=False)[:, 0]
+    groups = sorted({r.get(by) for r in rows}, key=str) if by else [None]
+    for ax, y in zip(axes, ys, strict=True):
+        for g in groups:
+            mine = sorted(
+                [r for r in rows if (by is None or r.get(by) == g) and r.get(y) is not None],
+                key=lambda r: r[x],
+            )
+            ax.plot(
+                [r[x] for r in mine], [float(r[y]) for r in mine], "o-", label=f"{by}={g}" if by else None
+            )
+        ax.set(xlabel=x, ylabel=y)
+        if by:
+            ax.legend(fontsize=8)
+    path = directory / f"{name}.png"
+    fig.savefig(path, dpi=110)
+    return [path]
+
+
+def payload_figures(rows: list[dict], directory: str | Path) -> list[Path]:
+    """Load displacement and success over the load mass, standing and walking."""
+    return _xy_figure(rows, "mass", ("load_displacement_m", "success"), "payload", directory, by="walking")
+
+
+def nodes_figures(rows: list[dict], directory: str | Path) -> list[Path]:
+    """Solve time and end-effector tracking over the node count."""
+    return _xy_figure(rows, "nodes", ("solve_ms_median", "ee_rms_cm", "iterations_mean"), "nodes", directory)
+
+
 # --------------------------------------------------------------------------------------------- benchmark
 def benchmark(path: str | Path, workers: int = 2, scheduler_cases: int = 200, progress: bool = False) -> dict:
     """Speed-up of a sweep over the serial loop on the same cases, and the per-case scheduling overhead.
@@ -719,11 +1155,24 @@ def _demo_study(quick: bool) -> list[dict]:
     return grid(x=list(range(4 if quick else 20)), sleep=[0.1])
 
 
-# name -> (cases(quick), case function, warm-up); the robustness, payload and node sweeps plug in here.
+# name -> (cases(quick), case function, warm-up)
 STUDIES = {
     "demo": (_demo_study, demo_case, None),
     "closed_loop": (_closed_loop_study, closed_loop_case, warm_closed_loop_cache),
+    "robustness": (_robustness_study, robustness_case, warm_experiment_cache),
+    "payload": (_payload_study, payload_case, warm_experiment_cache),
+    "nodes": (_nodes_study, nodes_case, warm_experiment_cache),
+    "time_steps": (_time_steps_study, time_steps_case, warm_experiment_cache),
 }
+# name -> f(rows, directory) -> figure paths, drawn after the sweep (CLI) into data/output/sweeps/
+FIGURES = {
+    "robustness": robustness_figures,
+    "payload": payload_figures,
+    "nodes": nodes_figures,
+    "time_steps": time_steps_figures,
+}
+# Full runs of these studies write their tables to data/results/sweeps/ (committed summaries).
+RESULT_STUDIES = ("robustness", "payload", "nodes", "time_steps")
 
 
 def main(argv: list[str] | None = None) -> SweepRun | dict:
@@ -739,6 +1188,8 @@ def main(argv: list[str] | None = None) -> SweepRun | dict:
     parser.add_argument("--quick", action="store_true", help="a small grid and short runs")
     parser.add_argument("--no-resume", action="store_true", help="start a new table")
     parser.add_argument("--retry-failed", action="store_true", help="rerun the error and worker-died cases")
+    parser.add_argument("--figures", type=Path, help="figure folder (default data/output/sweeps)")
+    parser.add_argument("--no-figures", action="store_true", help="do not draw the study's figures")
     parser.add_argument(
         "--benchmark", type=Path, metavar="JSON", help="measure speed-up and overhead instead"
     )
@@ -750,7 +1201,10 @@ def main(argv: list[str] | None = None) -> SweepRun | dict:
         print(json.dumps({k: v for k, v in result.items() if not isinstance(v, list | dict)}, indent=2))
         return result
     make_cases, fn, warmup = module.STUDIES[args.study]
-    output = args.output or REPO_ROOT / "data/output/sweeps" / f"{args.study}.csv"
+    folder = (
+        "data/results/sweeps" if args.study in RESULT_STUDIES and not args.quick else "data/output/sweeps"
+    )
+    output = args.output or REPO_ROOT / folder / f"{args.study}{'_quick' if args.quick else ''}.csv"
     run = module.run_sweep(
         make_cases(args.quick),
         fn,
@@ -762,6 +1216,12 @@ def main(argv: list[str] | None = None) -> SweepRun | dict:
         retry_failed=args.retry_failed,
     )
     print(f"{output}: {len(run.rows)} cases run {run.counts}, {run.skipped} skipped, {run.wall_s:.1f} s")
+    if args.study in module.FIGURES and not args.no_figures:
+        rows = read_table(output)
+        for path in module.FIGURES[args.study](rows, args.figures or REPO_ROOT / "data/output/sweeps"):
+            print(f"figure: {path}")
+        if args.study == "robustness":
+            print(json.dumps(module.robustness_report(rows), indent=2))
     return run
 
 
