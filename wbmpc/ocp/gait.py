@@ -288,15 +288,6 @@ def parse_gait_schedule(spec: str, period: float = 0.8, tick: float = SCHEDULE_T
     return GaitSchedule(segments, tick)
 
 
-def as_schedule(gait: Gait | GaitSchedule) -> GaitSchedule:
-    """``gait`` as a schedule (a lone gait is one segment that goes on)."""
-    if isinstance(gait, GaitSchedule):
-        return gait
-    if isinstance(gait, Gait):
-        return GaitSchedule([(gait, 1e9)], gait.tick)
-    raise ValueError(f"expected a Gait or GaitSchedule (see wbmpc.ocp.gait), got {gait!r}")
-
-
 @dataclass(frozen=True)
 class SwingParams:
     """Swing-foot reference: apex height [m] in (0, 0.5), lift-off / touch-down vertical velocities [m/s]."""

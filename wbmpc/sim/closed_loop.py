@@ -557,7 +557,9 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             interrupt.check()  # Ctrl-C
         t = step * config.plant_dt
         q, v = state.q, state.v
-        contact = schedule.contact(t)
+        if step % per_mpc == 0:  # the schedule of the coming MPC period in one vectorised call
+            period_contacts = schedule.sample(config.plant_dt * np.arange(step, step + per_mpc)).contact
+        contact = period_contacts[:, step % per_mpc]
         if pending is not None and step >= pending[0]:
             low.update(pending[1])
             pending = None
