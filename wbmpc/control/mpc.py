@@ -18,6 +18,7 @@ import pinocchio as pin
 
 from wbmpc import checks
 from wbmpc.control.diagnostics import exception_status, run_prechecks, solver_status
+from wbmpc.control.push_recovery import PushRecovery
 from wbmpc.model.robot import Robot
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
@@ -142,6 +143,9 @@ class MPCConfig:
         touchdown_speed: Downward foot speed [m/s] of an aborted swing; touchdown_time: its minimum [s].
         kick_recovery_hold: Also abort the early swings while recovering (base velocity further than
             ``kick_recovery`` from the command); False: only the swings in progress when the push is detected.
+        kick_ee_release: While recovering from a push, the end-effector velocity reference [s]: it starts at
+            the measured end-effector velocity and ramps to the command over this time (the arm moves with the
+            pushed base instead of holding the hand still at once); ``None``: the command throughout.
     """
 
     gait: Gait | GaitSchedule = field(default_factory=lambda: make_gait("trot", 0.8))
@@ -168,6 +172,7 @@ class MPCConfig:
     touchdown_speed: float = 0.3
     touchdown_time: float = 0.03
     kick_recovery_hold: bool = False
+    kick_ee_release: float | None = 0.2
 
     def __post_init__(self):
         for name in ("dt_min", "dt_max", "mu", "tol", "mu_init_warm", "mu_init_cold"):
@@ -180,8 +185,8 @@ class MPCConfig:
                     f"MPCConfig.{name} = {getattr(self, name)} s is outside "
                     f"[{DT_BOUNDS[0]}, {DT_BOUNDS[1]}] s (the paper's steps: 0.01 to 0.1 s)"
                 )
-        for name in ("touchdown_speed", "touchdown_time", "kick_recovery_phase") + (
-            ("kick_recovery",) if self.kick_recovery is not None else ()
+        for name in ("touchdown_speed", "touchdown_time", "kick_recovery_phase") + tuple(
+            name for name in ("kick_recovery", "kick_ee_release") if getattr(self, name) is not None
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not value > 0:
@@ -296,8 +301,7 @@ class WholeBodyMPC:
         self.previous: MPCSolution | None = None
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0, "holds": 0}
         self.stats["swing_aborts"] = 0
-        self.aborted_swings: dict[int, float] = {}  # foot -> nominal touchdown time [s] of an aborted swing
-        self.recovering = False  # after a push, until the base velocity is back near the command
+        self.push_recovery = PushRecovery(self)  # swings aborted after a push (MPCConfig.kick_recovery)
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.last_inputs: dict | None = None
@@ -664,54 +668,31 @@ class WholeBodyMPC:
     def reset(self) -> None:
         """Forget the previous plan (the next solve is a cold start) and any aborted swing."""
         self.previous = None
-        self.aborted_swings = {}
-        self.recovering = False
+        self.push_recovery.reset()
 
     def recovery_parameters(
         self, params: dict, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands: Commands
     ) -> dict:
-        """The stage parameters with aborted swings (``MPCConfig.kick_recovery``): feet brought down and
-        planned in stance until their nominal touchdown; ``params`` unchanged when no swing is aborted."""
-        cfg, robot = self.config, self.robot
-        if cfg.kick_recovery is None and not self.aborted_swings:
-            return params
-        self.aborted_swings = {i: end for i, end in self.aborted_swings.items() if t < end - 1e-9}
-        if cfg.kick_recovery is not None:
-            now = cfg.gait.sample(np.array([t]))
-            R_base = pin.Quaternion(q_hat[3:7]).normalized().toRotationMatrix()
-            R_heading = pin.rpy.rpyToMatrix(0.0, 0.0, heading(q_hat))
-            error = np.linalg.norm((R_base @ v_hat[0:3] - R_heading @ commands.base_linear_velocity)[0:2])
-            pushed = False
-            if self.previous is not None:  # a push: the measured base velocity jumped off the last plan
-                v_plan = _interp_rows(np.array([t]), self.previous.node_times, self.previous.v)[0]
-                pushed = bool(np.linalg.norm(v_hat[0:2] - v_plan[0:2]) > cfg.kick_recovery)
-            # Recovering until the base velocity is back near the command (a commanded speed-up is no push).
-            self.recovering = (self.recovering or pushed) and error > cfg.kick_recovery
-            if pushed or (self.recovering and cfg.kick_recovery_hold):
-                for i in range(robot.n_feet):
-                    phase = now.swing_phase[i, 0]
-                    early = not now.contact[i, 0] and phase < cfg.kick_recovery_phase
-                    if early and i not in self.aborted_swings:
-                        self.aborted_swings[i] = t + (1.0 - phase) * now.swing_duration[i, 0]
-                        self.stats["swing_aborts"] += 1
-        if not self.aborted_swings:
-            return params
-        t_nodes = node_times(self.time_steps(), t)[:-1]
-        contact = params["contact"] > 0.5
-        swing_vz = np.array(params["swing_vz"], dtype=float)
-        data = robot.model.createData()
-        pin.framesForwardKinematics(robot.model, data, q_hat)
-        for i, end in self.aborted_swings.items():
-            height = data.oMf[robot.frame_id(robot.foot_frames[i])].translation[2] - robot.foot_radius
-            landing = t + max(cfg.touchdown_time, height / cfg.touchdown_speed) if height > 2e-3 else t
-            down = (t_nodes < landing - 1e-9) & (t_nodes < end - 1e-9)
-            stance = (t_nodes >= landing - 1e-9) & (t_nodes < end - 1e-9)
-            contact[i, down], swing_vz[i, down] = False, -max(height, 0.0) / max(landing - t, 1e-3)
-            contact[i, stance], swing_vz[i, stance] = True, 0.0
-        ratio = robot.front_force_ratio if cfg.front_force_ratio is None else cfg.front_force_ratio
-        weight = robot.mass * robot.gravity - commands.ee_force[2]
-        force_des = default_force_distribution(contact, weight / robot.gravity, robot.gravity, ratio)
-        return {**params, "contact": contact.astype(float), "swing_vz": swing_vz, "force_des": force_des}
+        """The stage parameters after a push (see :mod:`wbmpc.control.push_recovery`): aborted swings
+        (``MPCConfig.kick_recovery``) and, while recovering, the released end-effector velocity
+        (``MPCConfig.kick_ee_release``); ``params`` itself when neither acts (no push detected)."""
+        self.push_recovery.update(q_hat, v_hat, t, commands)
+        return self.push_recovery.parameters(params, q_hat, v_hat, t, commands)
+
+    def contact_plan(self, times) -> np.ndarray:
+        """Contact flags (4, n) at ``times`` [s]: the gait schedule with any aborted swing (the one plan the
+        closed loop's plant and logs share with the MPC; the state estimator still reads the schedule)."""
+        return self.push_recovery.contact(times)
+
+    @property
+    def aborted_swings(self) -> dict[int, float]:
+        """Foot -> nominal touchdown time [s] of its aborted swing."""
+        return {i: span[1] for i, span in self.push_recovery.aborted.items()}
+
+    @property
+    def recovering(self) -> bool:
+        """After a push, until the base velocity is back near the command."""
+        return self.push_recovery.recovering
 
 
 def solver_timings(stats: dict, wall: float) -> dict:

@@ -537,6 +537,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     cmd = _commands(config, 0.0)
     scene_names = plant.body_names if pybullet else []
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
+    contact_plan = getattr(mpc, "contact_plan", None) or (lambda times: schedule.sample(times).contact)
 
     def run_summary(columns: Mapping, fell: bool) -> dict:  # columns from memory or the streamed file
         summary = summarize(mpc, columns, config, fell, low.violations, plant)
@@ -557,9 +558,6 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             interrupt.check()  # Ctrl-C
         t = step * config.plant_dt
         q, v = state.q, state.v
-        if step % per_mpc == 0:  # the schedule of the coming MPC period in one vectorised call
-            period_contacts = schedule.sample(config.plant_dt * np.arange(step, step + per_mpc)).contact
-        contact = period_contacts[:, step % per_mpc]
         if pending is not None and step >= pending[0]:
             low.update(pending[1])
             pending = None
@@ -612,6 +610,12 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if fallen(state, max_tilt=config.max_tilt):
                 fell = True
                 break
+        if step % per_mpc == 0:
+            # The contact plan of the coming MPC period in one vectorised call, sampled after this tick's
+            # solve: the MPC's plan (the gait schedule with any swing aborted after a push), so the rigid
+            # plant, the logs and the MPC share one plan.
+            period_contacts = contact_plan(config.plant_dt * np.arange(step, step + per_mpc))
+        contact = period_contacts[:, step % per_mpc]
         if step % per_low == 0:
             if estimator is None:
                 q_meas, v_meas = sensor.measure(q, v)  # ground truth: plain copies

@@ -262,6 +262,11 @@ def disturbance_rejection(quick=None, progress=True, robot=None, magnitude: floa
         "kick_m_per_s": magnitude,
         "phases": per_phase,
         "fell": any(r.fell for r in runs.values()),
+        # The MPC's push recovery (wbmpc.control.push_recovery): swing abort and end-effector release.
+        "push_recovery": {
+            name: getattr(mpc_config, name)
+            for name in ("kick_recovery", "kick_recovery_phase", "kick_ee_release")
+        },
         "solver": _solve_stats(next(iter(runs.values()))),
         "machine": machine_description(),
     }

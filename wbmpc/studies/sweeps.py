@@ -679,7 +679,7 @@ def _experiment_setup(case: dict, **mpc_kwargs):
     if "compiled" in case:
         config = replace(config, compiled=bool(case["compiled"]))
     # MPC options a case may switch (comparisons)
-    for name in ("kick_recovery", "kick_recovery_phase", "kick_recovery_hold"):
+    for name in ("kick_recovery", "kick_recovery_phase", "kick_recovery_hold", "kick_ee_release"):
         if name in case and hasattr(config, name):
             config = replace(config, **{name: case[name]})
     return ex, robot, nodes, config
@@ -720,11 +720,14 @@ def robustness_case(case: dict) -> dict:
 
     Parameters read (defaults): ``magnitude`` [m/s] of the velocity kick (a
     :class:`~wbmpc.sim.disturbances.Kick`), ``direction`` ("lateral": world +y, "forward": +x), ``phase``
-    (fraction of the 0.8 s trot period after the FR/RL pair's lift-off at 1.2 s; 0.5: the FL/RR pair's),
+    (fraction of the 0.8 s trot period after the FR/RL pair's lift-off at ``lift_off`` [s]; 0.5: the FL/RR
+    pair's), ``lift_off`` (1.2: the first FR/RL lift-off after 1.5 periods from the standing start; the same
+    pair lifts off every 0.8 s, e.g. 2.0 as in experiment 2),
     ``delay`` (0: off, else seconds of fixed computation delay), ``seed`` (None: ground truth, else
     :data:`NOISE` with that seed, and the 50 Hz joint-velocity filter), ``quick`` (False: compiled solver;
     True: in-process), ``nodes`` (15), ``after`` [s] simulated after the kick (full 2.0, quick 0.5),
-    ``kick_recovery`` (the MPC's default).
+    ``kick_recovery``, ``kick_recovery_phase``, ``kick_recovery_hold``, ``kick_ee_release`` (the MPC's
+    defaults; None switches the abort or the end-effector release off).
 
     Results: ``fell``, ``max_tilt_rad``, peak base speed along the kick, ``recovery_time_s`` (speed along the
     kick below 0.1 m/s for good, ``None`` if never), lateral/forward displacement, peak calf torque over its
@@ -741,7 +744,9 @@ def robustness_case(case: dict) -> dict:
     quick = bool(case.get("quick", False))
     magnitude = float(case.get("magnitude", 0.8))
     direction = np.asarray(DIRECTIONS[case.get("direction", "lateral")])
-    t0 = 1.2  # the FR/RL pair lifts off (every 0.8 s), after 1.5 trot periods from the standing start
+    t0 = float(case.get("lift_off", 1.2))  # an FR/RL lift-off (every 0.8 s from 1.2 s)
+    if abs((t0 - 1.2) / ex.GAIT_PERIOD - round((t0 - 1.2) / ex.GAIT_PERIOD)) > 1e-9 or t0 < 1.2 - 1e-9:
+        raise ValueError(f"lift_off = {t0} s is not an FR/RL lift-off (1.2 s + k 0.8 s)")
     t_kick = t0 + float(case.get("phase", 0.0)) * ex.GAIT_PERIOD
     after = float(case.get("after", 0.5 if quick else 2.0))
     noise = _sensor(case)
@@ -1004,6 +1009,16 @@ def robustness_report(rows: list[dict], up_to: float = 0.8) -> dict:
         "survival_by_direction": {
             d: rate([r for r in done if r.get("direction") == d])
             for d in sorted({r.get("direction") for r in done})
+        },
+        "survival_by_direction_and_magnitude": {
+            f"{d} {m:g}": rate([r for r in done if r.get("direction") == d and r["magnitude"] == m])
+            for d in sorted({r.get("direction") for r in done})
+            for m in sorted({r["magnitude"] for r in done if r.get("direction") == d})
+        },
+        # lift_off: the FR/RL lift-off the phases count from (rows without the column: 1.2 s)
+        "survival_by_lift_off": {
+            f"{lo:g}": rate([r for r in done if (r.get("lift_off") or 1.2) == lo])
+            for lo in sorted({r.get("lift_off") or 1.2 for r in done})
         },
         "falls": sorted(
             [
