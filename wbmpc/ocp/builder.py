@@ -307,7 +307,6 @@ class OCP:
         """
         robot, form = self.robot, self.formulation
         weight = robot.mass * robot.gravity
-        big_force = 10.0 * weight
         has_input = st.u is not None
         rows = []
 
@@ -354,14 +353,17 @@ class OCP:
             add("dynamics", form.dynamics_constraints(st, data, applied), 0, 0)
             if st.torque_limited:
                 tau_max = robot.joint_torque_limits
-                add("torque_limits", form.torque_expression(st, data, applied), -tau_max, tau_max)
+                # Rows scaled to O(1) slacks (here and below): Fatrop starts every bound multiplier at 1, so a
+                # slack of 100 N m costs extra iterations until s z reaches the barrier parameter.
+                tau = form.torque_expression(st, data, applied)
+                add("torque_limits", *_unit_rows(tau, -tau_max, tau_max))
             cone = []
             for i in range(self.n_feet):
                 fx, fy, fz = F[3 * i], F[3 * i + 1], F[3 * i + 2]
-                relax = 1 - contact[i]
+                relax = 1 - contact[i]  # a swing foot's rows: inactive with a unit slack
                 cone += [
-                    (fz + relax * big_force) / weight,
-                    (p["mu"] ** 2 * fz**2 - fx**2 - fy**2 + relax * big_force**2) / weight**2,
+                    fz / weight + relax,
+                    (p["mu"] ** 2 * fz**2 - fx**2 - fy**2) / weight**2 + relax,
                 ]
             add("friction_cone", ca.vertcat(*cone), 0, np.inf)
             if ee_input:
@@ -381,10 +383,10 @@ class OCP:
                     add("ee_velocity", ee_vel - sp["ee_velocity"], 0, 0)
         if k >= 1:
             lo_q, hi_q = robot.joint_position_limits
-            add("joint_position_limits", st.q[7:], lo_q, hi_q)
+            add("joint_position_limits", *_unit_rows(st.q[7:], lo_q, hi_q))
         if velocity_rows and st.v is not None:
             v_max = robot.joint_velocity_limits
-            add("joint_velocity_limits", st.v[6:], -v_max, v_max)
+            add("joint_velocity_limits", *_unit_rows(st.v[6:], -v_max, v_max))
         return cost, rows
 
     def applied_forces(self, st, contact, ee_force) -> dict[str, ca.SX]:
@@ -488,3 +490,14 @@ class OCP:
                 f_k = np.asarray(forces[s.k])[: len(self.force_frames)]  # decision-variable forces only
                 parts.append(form.input_values(v[s.k], a[s.k], f_k, tau_k, s.has_torque))
         return np.concatenate(parts)
+
+
+def _unit_rows(expr: ca.SX, lower: np.ndarray, upper: np.ndarray) -> tuple[ca.SX, np.ndarray, np.ndarray]:
+    """``lower <= expr <= upper`` rewritten as ``-1 <= (expr - mid) / half <= 1`` per row (rows with an
+    infinite or huge range are left as they are). The same feasible set, with slacks of order one."""
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        mid, half = (upper + lower) / 2, (upper - lower) / 2
+    finite = np.isfinite(mid) & np.isfinite(half) & (half > 0) & (half < 1e6)
+    mid, half = np.where(finite, mid, 0.0), np.where(finite, half, 1.0)
+    return (expr - mid) / half, (lower - mid) / half, (upper - mid) / half

@@ -79,6 +79,8 @@ def stage_functions(ocp: OCP, kind: str, k: int) -> dict[str, ca.Function]:
     names = ["z", "x_next", "p", "s"]
     return {
         "fg": ca.Function(f"{kind}_fg", ins, [cost, g], names, ["f", "g"]),
+        # The cost alone: the line search evaluates it without the dynamics rows.
+        "f": ca.Function(f"{kind}_f", ins, [cost], names, ["f"]),
         "grad_f": ca.Function(f"{kind}_grad_f", ins, [ca.gradient(cost, z)], names, ["grad_f"]),
         "jac_g": ca.Function(f"{kind}_jac_g", ins, [g, ca.jacobian(g, w)], names, ["g", "jac_g"]),
         "hess": ca.Function(
@@ -120,7 +122,7 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
             parts.append(P[start + k * rows : start + (k + 1) * rows])
         return ca.vertcat(*parts)
 
-    f, g_parts, grad_f, jac_rows, hess_blocks, grad_x, grad_p = 0, [], [], [], [], [], 0
+    f, f_only, g_parts, grad_f, jac_rows, hess_blocks, grad_x, grad_p = 0, 0, [], [], [], [], [], 0
     carry = None  # gradient of stage k-1 w.r.t. x_k
     for info in ocp.stages:
         fn = kinds[stage_kind(ocp, info.k)]
@@ -133,6 +135,7 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
         ins = [z, xn, P, s]
         fk, gk = fn["fg"](*ins)
         f += fk
+        f_only += fn["f"](*ins)
         g_parts.append(gk)
         grad_f.append(fn["grad_f"](*ins))
         _, jac = fn["jac_g"](*ins)
@@ -157,7 +160,7 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
     grad_x = ca.vertcat(*grad_x)
     return [
         ca.Function("nlp", [X, P], [f, g], ["x", "p"], ["f", "g"]),
-        ca.Function("nlp_f", [X, P], [f], ["x", "p"], ["f"]),
+        ca.Function("nlp_f", [X, P], [f_only], ["x", "p"], ["f"]),
         ca.Function("nlp_g", [X, P], [g], ["x", "p"], ["g"]),
         ca.Function("nlp_grad_f", [X, P], [grad_f], ["x", "p"], ["grad_f_x"]),
         ca.Function("nlp_jac_g", [X, P], [g, jac_g], ["x", "p"], ["g", "jac_g_x"]),

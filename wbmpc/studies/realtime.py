@@ -29,15 +29,18 @@ import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
-# name -> (compiled, BLASFEO, arm force as an input (paper's layout), baseline checkout)
+# name -> (compiled, BLASFEO, arm force as an input (paper's layout), baseline checkout, gcc flags)
+DEFAULT = ("-O1",)
+RELEASE = ("-O3", "-march=native")  # a deployment build: ~7x the build time and 2x gcc's memory
 VARIANTS = {
-    "compiled, native, arm force parameter": (True, "native", False, False),
-    "compiled, native, arm force input": (True, "native", True, False),
-    "compiled, generic, arm force parameter": (True, "generic", False, False),
-    "in-process, native, arm force parameter": (False, "native", False, False),
-    "in-process, generic, arm force parameter": (False, "generic", False, False),
-    "baseline compiled": (True, "generic", True, True),
-    "baseline in-process": (False, "generic", True, True),
+    "compiled, native, arm force parameter": (True, "native", False, False, DEFAULT),
+    "compiled, native, arm force parameter, -O3 -march=native": (True, "native", False, False, RELEASE),
+    "compiled, native, arm force input": (True, "native", True, False, DEFAULT),
+    "compiled, generic, arm force parameter": (True, "generic", False, False, DEFAULT),
+    "in-process, native, arm force parameter": (False, "native", False, False, DEFAULT),
+    "in-process, generic, arm force parameter": (False, "generic", False, False, DEFAULT),
+    "baseline compiled": (True, "generic", True, True, DEFAULT),
+    "baseline in-process": (False, "generic", True, True, DEFAULT),
 }
 
 _WORKER = """
@@ -49,9 +52,10 @@ from wbmpc.ocp import OCPSettings
 from wbmpc.gait import make_gait
 from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
 compiled, ee_force_input, steps, warmup = {compiled}, {ee_force_input}, {steps}, {warmup}
+flags = {{"compile_flags": {flags}}} if {flags} != ("-O1",) else {{}}
 robot = load_b1_z1()
 settings = OCPSettings(n_nodes=15) if {baseline} else OCPSettings(n_nodes=15, ee_force_input=ee_force_input)
-mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled))
+mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled, **flags))
 mpc.verbose = False
 mpc._solver(cold=True), mpc._solver(cold=False)  # build or load before timing
 log = run_closed_loop(mpc, ClosedLoopConfig(duration=(steps + warmup) / 80.0), progress=False).log
@@ -72,6 +76,7 @@ record = {{
     "converged_fraction": float(np.mean(log.success[warmup:])),
     "profile_mean_ms": profile,
     "build_s": build.build_s if build else None,
+    "compile_flags": list({flags}) if compiled else None,
     "build_peak_mb": build.build_peak_mb if build else None,
     "blasfeo": library,
     "decision_variables": int(mpc.ocp.n_variables),
@@ -82,14 +87,19 @@ sys.stdout.write("\\nRECORD " + json.dumps(record) + "\\n")
 
 def run_turn(variant: str, steps: int, warmup: int, baseline: Path | None) -> dict:
     """One closed-loop run of ``variant`` in a fresh process; its benchmark record and solve times."""
-    compiled, library, ee_force_input, is_baseline = VARIANTS[variant]
+    compiled, library, ee_force_input, is_baseline, flags = VARIANTS[variant]
     env = {**os.environ, "WBMPC_BLASFEO": library, "OMP_NUM_THREADS": "1"}
     cwd = REPO_ROOT
     if is_baseline:
         env["PYTHONPATH"] = str(baseline)  # the old checkout's wbmpc shadows this one
         cwd = baseline
     code = _WORKER.format(
-        compiled=compiled, ee_force_input=ee_force_input, steps=steps, warmup=warmup, baseline=is_baseline
+        compiled=compiled,
+        ee_force_input=ee_force_input,
+        steps=steps,
+        warmup=warmup,
+        baseline=is_baseline,
+        flags=repr(tuple(flags)),
     )
     proc = subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RECORD ")]
@@ -118,6 +128,7 @@ def summarize(records: list[dict]) -> dict:
         "converged_fraction": float(np.mean([r["converged_fraction"] for r in records])),
         "profile_mean_ms": profile,
         "build_s": first.get("build_s"),
+        "compile_flags": first.get("compile_flags"),
         "build_peak_mb": first.get("build_peak_mb"),
         "blasfeo": first.get("blasfeo"),
         "decision_variables": first.get("decision_variables"),

@@ -1031,8 +1031,38 @@ def robustness_report(rows: list[dict], up_to: float = 0.8) -> dict:
     }
 
 
+def time_steps_summary(rows: list[dict]) -> list[dict]:
+    """Per grid and delay: runs, falls, and the base drift [cm/s] of the runs that stood (mean, std, min,
+    max over the seeds), sorted by delay then grid."""
+    import numpy as np
+
+    out = []
+    keys = sorted({(float(r["delay"]), r["grid"]) for r in rows if r.get("grid") is not None})
+    for delay, g in keys:
+        mine = [r for r in rows if r.get("grid") == g and float(r["delay"]) == delay]
+        stood = [
+            float(r["drift_cm_per_s"])
+            for r in mine
+            if not r.get("fell") and r.get("drift_cm_per_s") is not None
+        ]
+        out.append(
+            {
+                "grid": g,
+                "delay_ms": 1e3 * delay,
+                "runs": len(mine),
+                "fell": sum(bool(r.get("fell")) for r in mine),
+                "drift_mean": float(np.mean(stood)) if stood else None,
+                "drift_std": float(np.std(stood, ddof=1)) if len(stood) > 1 else None,
+                "drift_min": min(stood) if stood else None,
+                "drift_max": max(stood) if stood else None,
+            }
+        )
+    return out
+
+
 def time_steps_figures(rows: list[dict], directory: str | Path) -> list[Path]:
-    """Base drift over delay, adaptive vs uniform grid (mean and min-max over seeds)."""
+    """Base drift over delay, adaptive vs uniform grid: mean and min-max over the seeds of the runs that
+    stood; a delay where runs fell is marked with how many."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -1043,16 +1073,24 @@ def time_steps_figures(rows: list[dict], directory: str | Path) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     fig = Figure(figsize=(5.5, 3.2), layout="constrained")
     ax = fig.subplots()
-    for g in ("adaptive", "uniform"):
-        mine = [r for r in rows if r.get("grid") == g and r.get("drift_cm_per_s") is not None]
-        delays = sorted({r["delay"] for r in mine})
-        vals = [[r["drift_cm_per_s"] for r in mine if r["delay"] == d] for d in delays]
-        if not delays:
-            continue
-        mean = np.array([np.mean(v) for v in vals])
-        lo = mean - np.array([np.min(v) for v in vals])
-        hi = np.array([np.max(v) for v in vals]) - mean
-        ax.errorbar(1e3 * np.array(delays), mean, yerr=[lo, hi], marker="o", capsize=3, label=g)
+    summary = time_steps_summary(rows)
+    for i, g in enumerate(("adaptive", "uniform")):
+        mine = [s for s in summary if s["grid"] == g]
+        stood = [s for s in mine if s["drift_mean"] is not None]
+        if stood:
+            x = np.array([s["delay_ms"] for s in stood]) + (i - 0.5) * 0.8  # side by side
+            mean = np.array([s["drift_mean"] for s in stood])
+            err = [mean - [s["drift_min"] for s in stood], np.array([s["drift_max"] for s in stood]) - mean]
+            ax.errorbar(x, mean, yerr=err, marker="o", capsize=3, label=g, color=f"C{i}")
+        for s in mine:
+            if s["fell"]:
+                ax.annotate(
+                    f"{g}: {s['fell']}/{s['runs']} fell", (s["delay_ms"], 0.05 + 0.1 * i),
+                    xycoords=("data", "axes fraction"), ha="center", fontsize=7, color=f"C{i}",
+                )  # fmt: skip
+    if summary:
+        delays = [s["delay_ms"] for s in summary]
+        ax.set_xlim(min(delays) - 4, max(delays) + 8)
     ax.set(xlabel="computation delay [ms]", ylabel="base drift [cm/s]", title="Adaptive vs uniform steps")
     ax.legend(fontsize=8)
     path = directory / "time_steps.png"
