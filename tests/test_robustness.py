@@ -166,6 +166,35 @@ def test_the_closed_loop_shares_the_contact_plan_of_an_aborted_swing():
     np.testing.assert_array_equal(plan[:, 3], mpc.config.gait.sample(times[3:]).contact[:, 0])
 
 
+def test_an_aborted_swing_lands_at_the_time_planned_at_the_abort():
+    """A foot hovering 5 mm up after an abort is not re-planned to land 30 ms later at every solve (it then
+    never landed): the landing is fixed at the first solve, the descent aims below the ground, and a foot
+    still in the air at its landing keeps descending."""
+    import numpy as np
+
+    from wbmpc.control.push_recovery import MAX_TOUCHDOWN_SPEED, TOUCHDOWN_DEPTH
+
+    mpc, q, kicked, t, commands = _pushed_mpc()
+    q = q.copy()
+    q[2] += 0.005  # every foot 5 mm up
+    mpc.recovery_parameters(mpc.parameters(q, kicked, t, commands), q, kicked, t, commands)
+    feet = sorted(mpc.aborted_swings)
+    assert feet == [1, 2]
+    landing = t + mpc.config.touchdown_time
+    assert all(abs(mpc.push_recovery.aborted[i][0] - landing) < 1e-9 for i in feet)
+    for t_next in (t + 0.0125, t + 0.025):  # still hovering: the landing does not move
+        params = mpc.parameters(q, kicked, t_next, commands)
+        out = mpc.recovery_parameters(params, q, kicked, t_next, commands)
+        assert all(abs(mpc.push_recovery.aborted[i][0] - landing) < 1e-9 for i in feet)
+        expected = min((0.005 + TOUCHDOWN_DEPTH) / (landing - t_next), MAX_TOUCHDOWN_SPEED)
+        np.testing.assert_allclose(out["swing_vz"][feet, 0], -expected, rtol=1e-6)
+        assert np.all(out["contact"][feet, 0] == 0.0)
+    late = landing + 0.0125  # past the landing and still 5 mm up: one more node of descent, then stance
+    out = mpc.recovery_parameters(mpc.parameters(q, kicked, late, commands), q, kicked, late, commands)
+    assert np.all(out["contact"][feet, 0] == 0.0) and np.all(out["swing_vz"][feet, 0] < 0)
+    assert np.all(out["contact"][feet, 1] == 1.0)
+
+
 @pytest.mark.parametrize("direction", ["forward"])
 def test_kick_at_a_later_lift_off_is_survived(direction):
     """0.8 m/s kick at the FL/RR lift-off at 1.6 s (not the 1.2 s one the swing abort was tuned at), quick

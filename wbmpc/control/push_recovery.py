@@ -25,6 +25,11 @@ import pinocchio as pin
 from wbmpc.ocp.gait import default_force_distribution
 from wbmpc.ocp.time_grid import node_times
 
+#: An aborted swing's descent aims this far below the ground [m], so that the foot reaches it.
+TOUCHDOWN_DEPTH = 0.005
+#: Fastest planned descent of an aborted swing [m/s].
+MAX_TOUCHDOWN_SPEED = 1.0
+
 
 class PushRecovery:
     """The swing-abort state of one MPC (reset with the MPC).
@@ -43,12 +48,16 @@ class PushRecovery:
     def __init__(self, mpc):
         self.mpc = mpc
         self.aborted: dict[int, tuple[float, float]] = {}
+        self.landing: dict[
+            int, float
+        ] = {}  # foot -> landing time [s] fixed at the first solve after its abort
         self.recovering = False
         self.pushed_at: float | None = None
 
     def reset(self) -> None:
         """Forget every aborted swing and the recovery state."""
         self.aborted = {}
+        self.landing = {}
         self.recovering = False
         self.pushed_at = None
 
@@ -62,6 +71,7 @@ class PushRecovery:
         mpc = self.mpc
         cfg, robot = mpc.config, mpc.robot
         self.aborted = {i: span for i, span in self.aborted.items() if t < span[1] - 1e-9}
+        self.landing = {i: tl for i, tl in self.landing.items() if i in self.aborted}
         if cfg.kick_recovery is None:
             return False
         now = cfg.gait.sample(np.array([t]))
@@ -110,14 +120,23 @@ class PushRecovery:
         swing_vz = np.array(params["swing_vz"], dtype=float)
         heights = self._foot_heights(q_hat)
         for i, (_, end) in list(self.aborted.items()):
-            # Landing re-planned at each solve from the measured foot height; a foot within 2 mm of the
-            # ground is planned in stance at once.
+            # The landing time is fixed at the first solve after the abort (re-planning it from the measured
+            # height at every solve kept a foot hovering a few millimetres up, its landing always 30 ms
+            # ahead); the descent aims TOUCHDOWN_DEPTH below the ground so that the foot does reach it, and a
+            # foot still in the air at its landing keeps descending one more node.
             height = heights[i]
-            landing = t + max(cfg.touchdown_time, height / cfg.touchdown_speed) if height > 2e-3 else t
+            if i not in self.landing:
+                self.landing[i] = (
+                    t + max(cfg.touchdown_time, height / cfg.touchdown_speed) if height > 2e-3 else t
+                )
+            landing = self.landing[i]
+            if t >= landing - 1e-9 and height > 2e-3:
+                landing = t + t_nodes[1] - t_nodes[0]
             self.aborted[i] = (landing, end)
             down = (t_nodes < landing - 1e-9) & (t_nodes < end - 1e-9)
             stance = (t_nodes >= landing - 1e-9) & (t_nodes < end - 1e-9)
-            contact[i, down], swing_vz[i, down] = False, -max(height, 0.0) / max(landing - t, 1e-3)
+            speed = (max(height, 0.0) + TOUCHDOWN_DEPTH) / max(landing - t, 1e-3)
+            contact[i, down], swing_vz[i, down] = False, -min(speed, MAX_TOUCHDOWN_SPEED)
             contact[i, stance], swing_vz[i, stance] = True, 0.0
         ratio = robot.front_force_ratio if cfg.front_force_ratio is None else cfg.front_force_ratio
         weight = robot.mass * robot.gravity - commands.ee_force[2]
