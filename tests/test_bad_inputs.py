@@ -39,6 +39,11 @@ MPC_CONFIGS = [
     ({"solver": "snopt"}, "unknown solver 'snopt'"),
     ({"solver": "ipopt", "compiled": True}, "compiled needs solver='fatrop'"),
     ({"gait": "trot"}, "gait must be a Gait or GaitSchedule"),
+    ({"kick_recovery": -0.3}, "kick_recovery must be a positive number"),
+    ({"kick_recovery_phase": 0.0}, "kick_recovery_phase must be a positive number"),
+    ({"touchdown_speed": float("nan")}, "touchdown_speed must be a positive number"),
+    ({"kick_ee_release": 0.0}, "kick_ee_release must be a positive number"),
+    ({"kick_recovery_hold": "yes"}, "kick_recovery_hold must be True or False"),
 ]
 
 

@@ -19,7 +19,7 @@ import pinocchio as pin
 from wbmpc import checks
 from wbmpc.control.diagnostics import exception_status, run_prechecks, solver_status
 from wbmpc.control.push_recovery import PushRecovery
-from wbmpc.model.robot import Robot
+from wbmpc.model.robot import Robot, heading
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import (
@@ -31,7 +31,7 @@ from wbmpc.ocp.gait import (
     make_gait,
     swing_vertical_velocity,
 )
-from wbmpc.ocp.time_grid import geometric_time_steps, node_times
+from wbmpc.ocp.time_grid import geometric_time_steps, interp_rows, node_times
 
 SOLVERS = ("fatrop", "ipopt")
 DT_BOUNDS = (1e-4, 1.0)  # [s] sane range of the MPC's time steps
@@ -191,6 +191,9 @@ class MPCConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not value > 0:
                 raise ValueError(f"MPCConfig.{name} must be a positive number, got {value!r}")
+        if not isinstance(self.kick_recovery_hold, bool | np.bool_):
+            hold = self.kick_recovery_hold
+            raise ValueError(f"MPCConfig.kick_recovery_hold must be True or False, got {hold!r}")
         for name in ("max_iter", "cold_max_iter", "retry_max_iter"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
@@ -466,15 +469,15 @@ class WholeBodyMPC:
         # Express the old configurations in the old chart and interpolate there (linear in the tangent).
         q_ref = previous.q[0]
         dq_old = np.array([pin.difference(model, q_ref, q) for q in previous.q])
-        dq_interp = _interp_rows(t_new, t_old, dq_old)
+        dq_interp = interp_rows(t_new, t_old, dq_old)
         q_new = [pin.integrate(model, q_ref, d) for d in dq_interp]
         dq = np.array([pin.difference(model, q_hat, q) for q in q_new])
         dq[0] = 0.0
-        v = _interp_rows(t_new, t_old, previous.v)
+        v = interp_rows(t_new, t_old, previous.v)
         v[0] = params["v_hat"]
-        a = _interp_rows(t_new[:-1], t_old[:-1], previous.a)
+        a = interp_rows(t_new[:-1], t_old[:-1], previous.a)
         # Torques on every stage (held after the last planned one): formulations take what they use.
-        tau = _interp_rows(t_new[:-1], t_old[: len(previous.tau)], previous.tau)
+        tau = interp_rows(t_new[:-1], t_old[: len(previous.tau)], previous.tau)
         forces = np.zeros((N - 1, len(self.robot.contact_frames), 3))
         forces[:, : self.robot.n_feet, 2] = params["force_des"].T
         if self.robot.has_arm:
@@ -715,12 +718,6 @@ def solver_timings(stats: dict, wall: float) -> dict:
     return out
 
 
-def heading(q: np.ndarray) -> float:
-    """Yaw angle [rad] of the base (rotation about world z of its x axis)."""
-    R = pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
-    return float(np.arctan2(R[1, 0], R[0, 0]))
-
-
 def _checked(name: str, value, size: int) -> np.ndarray:
     value = np.asarray(value, dtype=float)
     if value.shape != (size,):
@@ -728,15 +725,3 @@ def _checked(name: str, value, size: int) -> np.ndarray:
     if not np.all(np.isfinite(value)):
         raise ValueError(f"{name} contains NaN or inf")
     return value
-
-
-def _interp_rows(t_new: np.ndarray, t_old: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Linear interpolation of each column of ``rows`` (len(t_old), n) at ``t_new`` (held at the ends)."""
-    rows = np.asarray(rows)
-    if rows.size == 0:
-        return rows
-    if len(t_old) == 1:
-        return np.repeat(rows[:1], len(t_new), axis=0)
-    i = np.clip(np.searchsorted(t_old, t_new, side="right") - 1, 0, len(t_old) - 2)
-    w = np.clip((t_new - t_old[i]) / (t_old[i + 1] - t_old[i]), 0.0, 1.0)[:, None]
-    return (1.0 - w) * rows[i] + w * rows[i + 1]

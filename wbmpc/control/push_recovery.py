@@ -22,8 +22,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.model.robot import heading
 from wbmpc.ocp.gait import default_force_distribution
-from wbmpc.ocp.time_grid import node_times
+from wbmpc.ocp.time_grid import interp_rows, node_times
 
 #: An aborted swing's descent aims this far below the ground [m], so that the foot reaches it.
 TOUCHDOWN_DEPTH = 0.005
@@ -74,19 +75,21 @@ class PushRecovery:
         self.landing = {i: tl for i, tl in self.landing.items() if i in self.aborted}
         if cfg.kick_recovery is None:
             return False
-        now = cfg.gait.sample(np.array([t]))
-        R_base = pin.Quaternion(q_hat[3:7]).normalized().toRotationMatrix()
-        R_heading = pin.rpy.rpyToMatrix(0.0, 0.0, _heading(R_base))
-        error = np.linalg.norm((R_base @ v_hat[0:3] - R_heading @ commands.base_linear_velocity)[0:2])
         pushed = False
         if mpc.previous is not None:
-            v_plan = _interp_rows(np.array([t]), mpc.previous.node_times, mpc.previous.v)[0]
+            v_plan = interp_rows(np.array([t]), mpc.previous.node_times, mpc.previous.v)[0]
             pushed = bool(np.linalg.norm(v_hat[0:2] - v_plan[0:2]) > cfg.kick_recovery)
+        if not (pushed or self.recovering):
+            return False  # the every-tick case: nothing more to compute
         # Recovering until the base velocity is back near the command (a commanded speed-up is no push).
-        self.recovering = (self.recovering or pushed) and error > cfg.kick_recovery
+        R_base = pin.Quaternion(q_hat[3:7]).normalized().toRotationMatrix()
+        R_heading = pin.rpy.rpyToMatrix(0.0, 0.0, heading(q_hat))
+        error = np.linalg.norm((R_base @ v_hat[0:3] - R_heading @ commands.base_linear_velocity)[0:2])
+        self.recovering = error > cfg.kick_recovery
         if pushed:
             self.pushed_at = t
         if pushed or (self.recovering and cfg.kick_recovery_hold):
+            now = cfg.gait.sample(np.array([t]))
             for i in range(robot.n_feet):
                 phase = now.swing_phase[i, 0]
                 if now.contact[i, 0] or phase >= cfg.kick_recovery_phase or i in self.aborted:
@@ -175,17 +178,3 @@ class PushRecovery:
         return np.array(
             [data.oMf[robot.frame_id(f)].translation[2] - robot.foot_radius for f in robot.foot_frames]
         )
-
-
-def _heading(R: np.ndarray) -> float:
-    return float(np.arctan2(R[1, 0], R[0, 0]))
-
-
-def _interp_rows(t_new: np.ndarray, t_old: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Linear interpolation of each column of ``rows`` at ``t_new`` (held at the ends)."""
-    rows = np.asarray(rows)
-    if len(t_old) == 1:
-        return np.repeat(rows[:1], len(t_new), axis=0)
-    i = np.clip(np.searchsorted(t_old, t_new, side="right") - 1, 0, len(t_old) - 2)
-    w = np.clip((t_new - t_old[i]) / (t_old[i + 1] - t_old[i]), 0.0, 1.0)[:, None]
-    return (1.0 - w) * rows[i] + w * rows[i + 1]

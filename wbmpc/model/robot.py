@@ -679,3 +679,9 @@ def _problem_report(urdf: Path, problems: Sequence[str]) -> str:
     count = f"{len(problems)} problem" + ("s" if len(problems) > 1 else "")
     lines = "\n".join(f"  - {problem}" for problem in problems)
     return f"{urdf}: {count} with link masses or inertias (PyBullet would simulate another robot):\n{lines}"
+
+
+def heading(q: np.ndarray) -> float:
+    """Yaw angle [rad] of the base (rotation about world z of its x axis)."""
+    R = pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
+    return float(np.arctan2(R[1, 0], R[0, 0]))

@@ -116,3 +116,15 @@ def symbolic_geometric_time_steps(n_nodes: int, dt_min, dt_max) -> list:
 def horizon_for(n_nodes: int, dt_min: float, dt_max: float) -> float:
     """Horizon length sum_k dt_k [s] of the geometric grid (about 0.56 s for 15 nodes, 10 -> 100 ms)."""
     return float(np.sum(geometric_time_steps(n_nodes, dt_min, dt_max)))
+
+
+def interp_rows(t_new: np.ndarray, t_old: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Linear interpolation of each column of ``rows`` (len(t_old), n) at ``t_new`` (held at the ends)."""
+    rows = np.asarray(rows)
+    if rows.size == 0:
+        return rows
+    if len(t_old) == 1:
+        return np.repeat(rows[:1], len(t_new), axis=0)
+    i = np.clip(np.searchsorted(t_old, t_new, side="right") - 1, 0, len(t_old) - 2)
+    w = np.clip((t_new - t_old[i]) / (t_old[i + 1] - t_old[i]), 0.0, 1.0)[:, None]
+    return (1.0 - w) * rows[i] + w * rows[i + 1]
