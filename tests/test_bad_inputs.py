@@ -578,6 +578,13 @@ CATALOGUE = [
         C,
         "OCPSettings.ee_force_input must be True or False",
     ),
+    (
+        "named",
+        "initial_state_variables a string",
+        lambda: OCPSettings(initial_state_variables="yes"),
+        C,
+        "OCPSettings.initial_state_variables must be True or False",
+    ),
     ("unclear", "three feet", _three_feet_mpc, C, "has 3 foot frames"),
     (
         "unclear",

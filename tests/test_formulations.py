@@ -59,6 +59,32 @@ def test_layout_matches_the_paper(smodel, robot, name):
     )
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_node0_state_as_parameter_is_the_same_problem(robot, name):
+    """Every formulation: node 0's state substituted from the measurement (default) gives the optimum of
+    the paper's layout, where it is pinned by equality rows (``h_0 = h(q_hat, v_hat)`` or ``v_0 = v_hat``)."""
+    v_hat = np.zeros(robot.nv)
+    v_hat[[0, 2, 4, 7]] = [0.2, -0.05, 0.3, 0.4]
+    plans = []
+    for pinned in (True, False):
+        settings = OCPSettings(n_nodes=5, formulation=name, initial_state_variables=pinned)
+        mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("stand")))
+        mpc.verbose = False
+        plans.append(mpc.solve(robot.q_nominal, v_hat, t=0.0))
+        assert (
+            mpc.ocp.n_variables
+            == (pinned * mpc.ocp.formulation.nx)
+            + sum(s.nx + s.nu for s in mpc.ocp.stages[1:])
+            + mpc.ocp.stages[0].nu
+        )
+    pinned, parameter = plans
+    assert pinned.success and parameter.success, (pinned.status, parameter.status)
+    for field in ("q", "v", "a", "forces", "tau"):
+        np.testing.assert_allclose(
+            getattr(parameter, field), getattr(pinned, field), atol=1e-5, err_msg=field
+        )
+
+
 def test_unknown_formulation_is_named():
     with pytest.raises(ValueError, match="unknown formulation 'rnea'.*inverse_dynamics"):
         OCPSettings(formulation="rnea")

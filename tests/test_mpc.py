@@ -30,9 +30,33 @@ def standing(robot):
 def test_decision_variables_match_the_paper(standing, robot):
     mpc, _ = standing
     # Paper, Table I: 1226 decision variables for the inverse-dynamics MPC with 15 nodes and tau on 3 nodes,
-    # counting the arm force pinned to its command on the 14 stages; as a parameter it drops 42 of them.
-    assert OCP(robot, OCPSettings(n_nodes=15, ee_force_input=True)).n_variables == 1226
-    assert mpc.ocp.n_variables == 1226 - 3 * 14
+    # counting the arm force pinned to its command on the 14 stages and node 0's state pinned to the
+    # measurement; as parameters they drop 42 and 44 of them.
+    paper = OCPSettings(n_nodes=15, ee_force_input=True, initial_state_variables=True)
+    assert OCP(robot, paper).n_variables == 1226
+    assert mpc.ocp.n_variables == 1226 - 3 * 14 - 44
+
+
+def test_node0_state_as_parameter_gives_the_same_plan(robot):
+    """Node 0's state pinned by equality rows (the paper) and substituted from the measurement: the same
+    optimum with 44 variables and 44 equality rows fewer, on a trot with a moving base and a warm start."""
+    plans, sizes = [], []
+    v_hat = np.zeros(robot.nv)
+    v_hat[[0, 1, 5, 8]] = [0.3, -0.1, 0.2, 0.5]
+    for pinned in (True, False):
+        settings = OCPSettings(n_nodes=8, initial_state_variables=pinned)
+        mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), dt_max=0.06))
+        mpc.solve(robot.q_nominal, v_hat, t=0.05)
+        plans.append(mpc.solve(robot.q_nominal, v_hat, t=0.0625))
+        sizes.append((mpc.ocp.n_variables, mpc.ocp.n_constraints))
+    pinned, parameter = plans
+    assert pinned.success and parameter.success
+    assert sizes[0][0] - sizes[1][0] == 44 and sizes[0][1] - sizes[1][1] == 44
+    np.testing.assert_allclose(parameter.v[0], v_hat, atol=1e-12)  # node 0 is the measurement itself
+    np.testing.assert_allclose(parameter.q[0], robot.q_nominal, atol=1e-12)
+    for name in ("q", "v", "a", "tau"):
+        np.testing.assert_allclose(getattr(parameter, name), getattr(pinned, name), atol=1e-6, err_msg=name)
+    np.testing.assert_allclose(parameter.forces, pinned.forces, atol=1e-5)
 
 
 def test_the_arm_force_as_parameter_gives_the_same_plan(robot):
@@ -54,8 +78,9 @@ def test_fatrop_detects_the_stage_structure(standing):
     mpc, _ = standing
     stats = mpc._solver(cold=True).stats()
     expected = mpc.ocp.stage_sizes()
+    # Node 0's state is a parameter: Fatrop's detection takes the first 44 of u_0's 50 entries as "x_0".
     assert list(stats["nx"]) == expected["nx"] == [44] * 15
-    assert list(stats["nu"]) == expected["nu"] == [50] * 3 + [34] * 11 + [0]
+    assert list(stats["nu"]) == expected["nu"] == [6] + [50] * 2 + [34] * 11 + [0]
     assert list(stats["ng"]) == expected["ng"]
 
 
@@ -235,7 +260,7 @@ def test_limit_rows_have_unit_slacks_and_the_same_feasible_set(robot):
     start, (n, _) = ocp.params.blocks["q_hat"]
     p[start : start + n] = robot.q_nominal
     g = np.asarray(ca.Function("g", [ocp.nlp["x"], ocp.nlp["p"]], [ocp.nlp["g"]])(w, p)).ravel()
-    blocks, stage = ocp.split(w), ocp.stages[2]
+    blocks, stage = ocp.split(w, p), ocp.stages[2]
     lo, hi = robot.joint_position_limits
     q_j = robot.q_nominal[7:] + blocks["dq"][2][6:]  # revolute joints: the increment adds
     np.testing.assert_allclose(

@@ -8,7 +8,9 @@ Nodes ``k = 0 .. N-1`` ("N = 15" counts the terminal node); stages ``k < N-1`` h
 constraint rows are ordered for Fatrop's structure detection: first the gap-closing transition
 ``x_{k+1} - f(x_k, u_k, dt_k) = 0``, then the path constraints of stage ``k`` (functions of ``x_k, u_k``):
 
-* node 0: the initial state ``dq_0 = 0``, ``v_0 = v_hat``;
+* node 0: the initial state ``dq_0 = 0``, ``v_0 = v_hat`` (only with
+  ``OCPSettings.initial_state_variables``; by default node 0's state is not a decision variable but the
+  measurement itself, substituted into the stage-0 rows, so stage 0 has inputs only);
 * dynamics (RNEA): base rows ``= 0``; joint rows ``= tau_j`` and ``|tau_j| <= tau_max`` on the first ``n_tau``
   nodes;
 * each foot ``i`` with contact flag ``c`` (a parameter): the force acting on the robot is ``c F_i`` so a
@@ -54,12 +56,17 @@ class OCPSettings:
             equality row on every stage, as in the paper's layout (its Table I counts those variables).
             ``False`` (default) enters the command as the parameter it is: 3 inputs and 3 equality rows
             fewer per stage, the same optimum.
+        initial_state_variables: Keep node 0's state as decision variables pinned to the measurement by
+            equality rows, as in the paper's layout. ``False`` (default) enters it as the parameter it is:
+            ``nx`` variables and ``nx`` equality rows fewer, the same optimum, and Fatrop's Riccati
+            recursion no longer eliminates them on every iteration (15 % of its search-direction time).
     """
 
     n_nodes: int = 15
     n_tau_nodes: int = 3
     formulation: str = "inverse_dynamics"
     ee_force_input: bool = False
+    initial_state_variables: bool = False
 
     def __post_init__(self):
         if (
@@ -83,8 +90,10 @@ class OCPSettings:
             )
         if self.formulation not in FORMULATIONS:
             raise ValueError(f"unknown formulation {self.formulation!r}; available: {list(FORMULATIONS)}")
-        if not isinstance(self.ee_force_input, bool | np.bool_):
-            raise ValueError(f"OCPSettings.ee_force_input must be True or False, got {self.ee_force_input!r}")
+        for name in ("ee_force_input", "initial_state_variables"):
+            value = getattr(self, name)
+            if not isinstance(value, bool | np.bool_):
+                raise ValueError(f"OCPSettings.{name} must be True or False, got {value!r}")
 
 
 class ParameterLayout:
@@ -231,16 +240,17 @@ class OCP:
         cost = 0
         for k, st in enumerate(stages):
             has_input = st.u is not None
+            nx = 0 if k == 0 and self.initial_state_is_parameter else form.nx
             info = StageInfo(
                 k=k,
-                nx=form.nx,
+                nx=nx,
                 nu=st.u.numel() if has_input else 0,
                 x_offset=offset,
-                u_offset=offset + form.nx if has_input else None,
+                u_offset=offset + nx if has_input else None,
                 has_torque=st.torque_limited,
                 g_offset=n_rows,
             )
-            x_parts += [st.x, st.u] if has_input else [st.x]
+            x_parts.append(self.stage_decision_variables(k, st))
             offset += info.nx + info.nu
             stage_p = self.stage_parameter_slices(p, k, dts[k] if has_input else None)
             x_next = stages[k + 1].x if has_input else None
@@ -259,6 +269,8 @@ class OCP:
 
         self.params = P
         self.stages = infos
+        x0 = self.initial_state_value(stages[0], p)
+        self.initial_state_function = ca.Function("x0", [P.vector], [x0], ["p"], ["x0"])
         self.plan_function = self._plan_function(stages, P, dts)
         self.dts_function = ca.Function("dts", [p["dt_min"], p["dt_max"]], [ca.vertcat(*dts)])
         self.nlp = {"x": ca.vertcat(*x_parts), "p": P.vector, "f": cost, "g": ca.vertcat(*g_parts)}
@@ -346,7 +358,7 @@ class OCP:
             applied = self.applied_forces(st, contact, p["ee_force"])
             # Gap-closing transition first (Fatrop structure detection).
             add("transition", x_next - form.transition(st, sp["dt"], data, applied), 0, 0)
-        if k == 0:
+        if k == 0 and not self.initial_state_is_parameter:
             add("initial_state", form.initial_state(st, p["q_hat"], p["v_hat"]), 0, 0)
         velocity_rows = k >= 1 or form.velocity_is_input  # v_0 is fixed by the measurement otherwise
         if has_input:
@@ -387,7 +399,47 @@ class OCP:
         if velocity_rows and st.v is not None:
             v_max = robot.joint_velocity_limits
             add("joint_velocity_limits", *_unit_rows(st.v[6:], -v_max, v_max))
+        if k == 0 and self.initial_state_is_parameter:  # node 0's state is the measurement
+            x0 = self.initial_state_value(st, p)
+            exprs = ca.substitute([cost, *[expr for _, expr, _, _ in rows]], [st.x], [x0])
+            cost = exprs[0]
+            rows = [(name, e, lo, hi) for (name, _, lo, hi), e in zip(rows, exprs[1:], strict=True)]
         return cost, rows
+
+    @property
+    def initial_state_is_parameter(self) -> bool:
+        """Whether node 0's state is the measurement (a parameter) rather than pinned decision variables."""
+        return not self.settings.initial_state_variables
+
+    def stage_decision_variables(self, k: int, st) -> ca.SX:
+        """Decision variables of stage ``k`` in NLP order: ``[x_k, u_k]``, ``u_0`` alone when node 0's
+        state is the measurement, ``x_k`` alone at the terminal node."""
+        x = ca.SX(0, 1) if k == 0 and self.initial_state_is_parameter else st.x
+        return ca.vertcat(x, st.u) if st.u is not None else x
+
+    def initial_state_value(self, st, p: dict) -> ca.SX:
+        """Node 0's state as an expression of the parameters: the solution ``x_0 = c(p)`` of the
+        formulation's initial-state rows ``x_0 - c(p) = 0``.
+
+        Raises:
+            ValueError: if the formulation's initial-state rows are not of that form (identity in
+                ``x_0``, free of the inputs), so that the state cannot be substituted.
+        """
+        rows = self.formulation.initial_state(st, p["q_hat"], p["v_hat"])
+        jac = ca.jacobian(rows, st.x)
+        inputs = st.u if st.u is not None else ca.SX(0, 1)
+        symbols = ca.vertcat(st.x, inputs, *[ca.vec(value) for value in p.values()])
+        if (
+            rows.numel() != st.x.numel()
+            or (inputs.numel() and ca.depends_on(rows, inputs))
+            or ca.depends_on(jac, symbols)
+            or not np.array_equal(np.array(ca.evalf(jac)), np.eye(st.x.numel()))
+        ):
+            raise ValueError(
+                f"formulation {self.formulation.name!r}: initial_state() must return x_0 - c(p) to enter "
+                "node 0's state as a parameter; use OCPSettings(initial_state_variables=True)"
+            )
+        return -ca.substitute(rows, st.x, ca.SX.zeros(st.x.numel()))
 
     def applied_forces(self, st, contact, ee_force) -> dict[str, ca.SX]:
         """Forces acting on the robot per contact frame: ``c_i F_i`` on the feet (a swing foot carries
@@ -428,47 +480,58 @@ class OCP:
                 tau.append(st.tau)
             elif st.torque_limited:
                 tau.append(cpin.rnea(self.smodel, st.q, v[k], a_k, applied)[6:])
-        w = self.nlp_variables(stages)
-        return ca.Function(
-            "plan",
-            [w, P.vector],
-            [
-                ca.horzcat(*[st.dq for st in stages]),
-                ca.horzcat(*v),
-                ca.horzcat(*a),
-                ca.horzcat(*forces),
-                ca.horzcat(*tau),
-            ],
-            ["w", "p"],
-            ["dq", "v", "a", "forces", "tau"],
-        )
-
-    @staticmethod
-    def nlp_variables(stages) -> ca.SX:
-        return ca.vertcat(*[ca.vertcat(st.x, st.u) if st.u is not None else st.x for st in stages])
+        w = ca.vertcat(*[self.stage_decision_variables(k, st) for k, st in enumerate(stages)])
+        outputs = [
+            ca.horzcat(*[st.dq for st in stages]),
+            ca.horzcat(*v),
+            ca.horzcat(*a),
+            ca.horzcat(*forces),
+            ca.horzcat(*tau),
+        ]
+        if self.initial_state_is_parameter:
+            outputs = ca.substitute(outputs, [stages[0].x], [self.initial_state_value(stages[0], p)])
+        return ca.Function("plan", [w, P.vector], outputs, ["w", "p"], ["dq", "v", "a", "forces", "tau"])
 
     # --- helpers for solvers and controllers -----------------------------------------------------------
     def stage_sizes(self) -> dict[str, list[int]]:
         """Expected Fatrop stage sizes: ``nx``, ``nu`` and path-constraint rows ``ng`` per node."""
         nx = [s.nx for s in self.stages]
         nu = [s.nu for s in self.stages]
+        if nx[0] == 0:  # node 0's state is a parameter: Fatrop's detection calls u_0's first nx_1 entries x_0
+            nx[0] = min(nx[1], nu[0])
+            nu[0] -= nx[0]
         # Fatrop counts the transition rows (nx of the next node) as dynamics, not as path constraints.
-        ng = [s.ng - (s.nx if s.u_offset is not None else 0) for s in self.stages]
+        ng = [
+            s.ng - (self.stages[i + 1].nx if s.u_offset is not None else 0) for i, s in enumerate(self.stages)
+        ]
         return {"nx": nx, "nu": nu, "ng": ng}
 
-    def split(self, w: np.ndarray) -> dict[str, np.ndarray]:
+    def split(self, w: np.ndarray, p: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Split a primal vector into the formulation's named blocks, stacked over the nodes that have
-        them (e.g. ``dq``, ``v`` (N, nv); ``a``, ``F`` (N-1, ...); ``tau`` (stages with torques, nj))."""
+        them (e.g. ``dq``, ``v`` (N, nv); ``a``, ``F`` (N-1, ...); ``tau`` (stages with torques, nj)).
+
+        Args:
+            w: Primal vector (``n_variables``,).
+            p: Parameter vector: node 0's state is computed from it when it is not a decision variable
+                (required then).
+        """
         w = np.asarray(w, dtype=float).ravel()
+        if w.shape != (self.n_variables,):
+            raise ValueError(f"w must have shape ({self.n_variables},), got {w.shape}")
         form = self.formulation
         out: dict[str, list] = {}
         for s in self.stages:
-            i = s.x_offset
-            blocks = form.state_blocks()
+            values, blocks = [w[s.x_offset : s.x_offset + s.nx]], form.state_blocks()
+            if s.nx == 0:
+                if p is None:
+                    raise ValueError("split(w, p) needs p: node 0's state is the measurement, not in w")
+                values = [np.array(self.initial_state_function(p)).ravel()]
             if s.u_offset is not None:
+                values.append(w[s.u_offset : s.u_offset + s.nu])
                 blocks = blocks + form.input_blocks(s.has_torque)
+            flat, i = np.concatenate(values), 0
             for name, n in blocks:
-                out.setdefault(name, []).append(w[i : i + n])
+                out.setdefault(name, []).append(flat[i : i + n])
                 i += n
         return {name: np.array(values) for name, values in out.items()}
 
@@ -484,7 +547,8 @@ class OCP:
         parts = []
         for s in self.stages:
             q = pin.integrate(model, q_hat, dq[s.k]) if form.velocity_is_input else None
-            parts.append(form.state_values(q, dq[s.k], v[s.k]))
+            if s.nx:  # node 0's state is the measurement unless it is a decision variable
+                parts.append(form.state_values(q, dq[s.k], v[s.k]))
             if s.u_offset is not None:
                 tau_k = tau[s.k] if s.k < len(tau) else None
                 f_k = np.asarray(forces[s.k])[: len(self.force_frames)]  # decision-variable forces only

@@ -70,7 +70,7 @@ def stage_functions(ocp: OCP, kind: str, k: int) -> dict[str, ca.Function]:
     x_next = ca.SX.sym("x_next", form.nx) if has_input else ca.SX(0, 1)
     cost, rows = ocp.stage_terms(k, st, x_next if has_input else None, p, sp if has_input else None)
     g = ca.vertcat(*[expr for _, expr, _, _ in rows])
-    z = ca.vertcat(st.x, st.u) if has_input else st.x
+    z = ocp.stage_decision_variables(k, st)
     w = ca.vertcat(z, x_next)
     lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", g.numel())
     gamma = lam_f * cost + ca.dot(lam_g, g)
@@ -129,7 +129,8 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
         nz = info.nx + info.nu
         z = X[info.x_offset : info.x_offset + nz]
         has_next = info.u_offset is not None
-        xn = X[info.x_offset + nz : info.x_offset + nz + info.nx] if has_next else ca.MX(0, 1)
+        nx_next = ocp.stages[info.k + 1].nx if has_next else 0
+        xn = X[info.x_offset + nz : info.x_offset + nz + nx_next] if has_next else ca.MX(0, 1)
         s = stage_params(info.k) if has_next else ca.MX.zeros(fn["fg"].size1_in(3), 1)
         lg = lam_g[info.g_offset : info.g_offset + info.ng]
         ins = [z, xn, P, s]
@@ -182,7 +183,7 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
 
 
 # --- building, caching and loading ------------------------------------------------------------------------
-CODEGEN_VERSION = 1  # bump when the generated functions change meaning
+CODEGEN_VERSION = 2  # bump when the generated functions change meaning
 DEFAULT_FLAGS = ("-O1",)
 # Modules whose code shapes the generated functions (every cpin module is added by glob).
 # The wbmpc sources the generated code depends on (paths in the package), plus every file of wbmpc/cpin.

@@ -50,7 +50,8 @@ def layout(mpc: WholeBodyMPC, solver: ca.Function) -> dict:
             "x_offset": s.x_offset,
             "nx": s.nx,
             "nu": s.nu,
-            "x": _ranges(form.state_blocks()),
+            # Node 0's state is the measurement (parameters q_hat, v_hat) unless the layout pins it.
+            "x": _ranges(form.state_blocks()) if s.nx else {},
         }
         if s.u_offset is not None:
             entry["u_offset"] = s.u_offset

@@ -50,7 +50,7 @@ def run_case(
     kp: float = 0.0,
     kd: float = 0.0,
     gate=None,
-    ee_force_input: bool = False,
+    paper_layout: bool = False,
     compile_flags: tuple[str, ...] | None = None,
 ) -> dict:
     """One closed-loop run; statistics over the solves after the warm-up.
@@ -59,7 +59,8 @@ def run_case(
         kp, kd: Low-level joint PD gains [N m/rad], [N m s/rad] (0: pure feed-forward torques).
         gate: Optional ``gate(mpc)`` called once the solvers are built; it may wrap ``mpc.solve`` (the
             ``--blasfeo both`` workers pause there between batches, outside the timed solver call).
-        ee_force_input: The paper's layout (arm force as a pinned input, see :class:`wbmpc.ocp.OCPSettings`).
+        paper_layout: The paper's layout: the arm force and node 0's state as decision variables pinned
+            by equality rows (``ee_force_input``, ``initial_state_variables`` of :class:`wbmpc.ocp.OCPSettings`).
         compile_flags: gcc flags of the compiled library (default: the MPC's).
     """
     from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
@@ -71,7 +72,12 @@ def run_case(
     config = MPCConfig(gait=make_gait("trot"), solver=solver, compiled=compiled)
     if compile_flags is not None:
         config.compile_flags = tuple(compile_flags)
-    settings = OCPSettings(n_nodes=nodes, formulation=formulation, ee_force_input=ee_force_input)
+    settings = OCPSettings(
+        n_nodes=nodes,
+        formulation=formulation,
+        ee_force_input=paper_layout,
+        initial_state_variables=paper_layout,
+    )
     mpc = WholeBodyMPC(robot, settings, config)
     mpc.verbose = progress
     start = time.perf_counter()

@@ -1,8 +1,9 @@
 """Real-time benchmark: solver variants compared in one interleaved run, each in its own process.
 
-A process holds one BLASFEO and one version of wbmpc, so every variant (native or generic BLASFEO, the
-arm force as a parameter or as the paper's pinned input, compiled or in-process, and optionally an older
-checkout of wbmpc as the baseline) runs in a subprocess; the variants take turns round after round, so
+A process holds one BLASFEO and one version of wbmpc, so every variant runs in a subprocess: native or
+generic BLASFEO; the OCP layout (the default, node 0's state as pinned variables, or the paper's layout
+that also pins the arm force as an input); compiled or in-process; optionally an older checkout of wbmpc
+as the baseline; the variants take turns round after round, so
 that the machine's drift and the other jobs on it hit them all alike. Each turn is a closed-loop run of
 the default benchmark (B1 + Z1 trotting with the arm reference, rigid plant, N = 15) through
 ``wbmpc.studies.bench.run_case``; the solve times of all rounds are pooled per variant. Compare the
@@ -29,18 +30,21 @@ import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
-# name -> (compiled, BLASFEO, arm force as an input (paper's layout), baseline checkout, gcc flags)
+# name -> (compiled, BLASFEO, OCP layout (OCPSettings fields), baseline checkout, gcc flags)
 DEFAULT = ("-O1",)
 RELEASE = ("-O3", "-march=native")  # a deployment build: ~7x the build time and 2x gcc's memory
+NODE0_VARIABLES = {"initial_state_variables": True}  # node 0's state pinned by equality rows
+PAPER_LAYOUT = {"initial_state_variables": True, "ee_force_input": True}  # and the arm force an input
 VARIANTS = {
-    "compiled, native, arm force parameter": (True, "native", False, False, DEFAULT),
-    "compiled, native, arm force parameter, -O3 -march=native": (True, "native", False, False, RELEASE),
-    "compiled, native, arm force input": (True, "native", True, False, DEFAULT),
-    "compiled, generic, arm force parameter": (True, "generic", False, False, DEFAULT),
-    "in-process, native, arm force parameter": (False, "native", False, False, DEFAULT),
-    "in-process, generic, arm force parameter": (False, "generic", False, False, DEFAULT),
-    "baseline compiled": (True, "generic", True, True, DEFAULT),
-    "baseline in-process": (False, "generic", True, True, DEFAULT),
+    "compiled, native": (True, "native", {}, False, DEFAULT),
+    "compiled, native, -O3 -march=native": (True, "native", {}, False, RELEASE),
+    "compiled, native, node-0 state variables": (True, "native", NODE0_VARIABLES, False, DEFAULT),
+    "compiled, native, paper layout": (True, "native", PAPER_LAYOUT, False, DEFAULT),
+    "compiled, generic": (True, "generic", {}, False, DEFAULT),
+    "in-process, native": (False, "native", {}, False, DEFAULT),
+    "in-process, generic": (False, "generic", {}, False, DEFAULT),
+    "baseline compiled": (True, "generic", {}, True, DEFAULT),
+    "baseline in-process": (False, "generic", {}, True, DEFAULT),
 }
 
 _WORKER = """
@@ -51,10 +55,10 @@ from wbmpc.mpc import MPCConfig, WholeBodyMPC
 from wbmpc.ocp import OCPSettings
 from wbmpc.gait import make_gait
 from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
-compiled, ee_force_input, steps, warmup = {compiled}, {ee_force_input}, {steps}, {warmup}
+compiled, steps, warmup = {compiled}, {steps}, {warmup}
 flags = {{"compile_flags": {flags}}} if {flags} != ("-O1",) else {{}}
 robot = load_b1_z1()
-settings = OCPSettings(n_nodes=15) if {baseline} else OCPSettings(n_nodes=15, ee_force_input=ee_force_input)
+settings = OCPSettings(n_nodes=15, **{layout})  # the baseline's default layout is the paper's
 mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled, **flags))
 mpc.verbose = False
 mpc._solver(cold=True), mpc._solver(cold=False)  # build or load before timing
@@ -87,7 +91,7 @@ sys.stdout.write("\\nRECORD " + json.dumps(record) + "\\n")
 
 def run_turn(variant: str, steps: int, warmup: int, baseline: Path | None) -> dict:
     """One closed-loop run of ``variant`` in a fresh process; its benchmark record and solve times."""
-    compiled, library, ee_force_input, is_baseline, flags = VARIANTS[variant]
+    compiled, library, layout, is_baseline, flags = VARIANTS[variant]
     env = {**os.environ, "WBMPC_BLASFEO": library, "OMP_NUM_THREADS": "1"}
     cwd = REPO_ROOT
     if is_baseline:
@@ -95,7 +99,7 @@ def run_turn(variant: str, steps: int, warmup: int, baseline: Path | None) -> di
         cwd = baseline
     code = _WORKER.format(
         compiled=compiled,
-        ee_force_input=ee_force_input,
+        layout=repr(layout),
         steps=steps,
         warmup=warmup,
         baseline=is_baseline,
