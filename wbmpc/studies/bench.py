@@ -59,8 +59,9 @@ def run_case(
         kp, kd: Low-level joint PD gains [N m/rad], [N m s/rad] (0: pure feed-forward torques).
         gate: Optional ``gate(mpc)`` called once the solvers are built; it may wrap ``mpc.solve`` (the
             ``--blasfeo both`` workers pause there between batches, outside the timed solver call).
-        paper_layout: The paper's layout: the arm force and node 0's state as decision variables pinned
-            by equality rows (``ee_force_input``, ``initial_state_variables`` of :class:`wbmpc.ocp.OCPSettings`).
+        paper_layout: The paper's layout: the arm force and node 0's state as decision variables
+            pinned by equality rows (``ee_force_input``, ``initial_state_variables`` of
+            :class:`wbmpc.ocp.OCPSettings`).
         compile_flags: gcc flags of the compiled library (default: the MPC's).
     """
     from wbmpc.control.mpc import MPCConfig, WholeBodyMPC

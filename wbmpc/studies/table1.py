@@ -92,7 +92,8 @@ def table_row(
     from wbmpc.ocp import OCP, OCPSettings
     from wbmpc.studies.bench import run_case
 
-    # The paper's layout (the arm force and node 0's state pinned decision variables), so that the decision variables compare with Table I.
+    # The paper's layout (the arm force and node 0's state pinned decision variables), so that the
+    # decision variables compare with Table I.
     settings = OCPSettings(
         n_nodes=nodes, formulation=formulation, ee_force_input=True, initial_state_variables=True
     )
