@@ -1166,6 +1166,7 @@ def _cli(module: str):
 CLI_CASES = [
     ("demo", ["--nodes", "1000"], "--nodes must be <= 100"),
     ("demo", ["--nodes", "0"], "--nodes must be"),
+    ("demo", ["--release"], "--release sets the compiler flags"),
     ("demo", ["--duration", "-1"], "--duration must be"),
     ("bench", ["--steps", "0"], "--steps must be an integer >= 1"),
     ("bench", ["--steps", "-5"], "--steps must be an integer >= 1"),

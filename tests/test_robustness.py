@@ -164,6 +164,14 @@ def test_the_closed_loop_shares_the_contact_plan_of_an_aborted_swing():
     plan = mpc.contact_plan(times)
     assert plan[:, :3].all()  # every foot in stance until the nominal touchdown at 1.6 s
     np.testing.assert_array_equal(plan[:, 3], mpc.config.gait.sample(times[3:]).contact[:, 0])
+    # The estimator sees the same plan: it trusts the legs the controller put down.
+    from wbmpc.estimation import contact_trust
+    from wbmpc.sim.hardware import PlannedContacts
+
+    seen = PlannedContacts(mpc.contact_plan)
+    np.testing.assert_array_equal(seen.contact(t + 0.1), plan[:, 1])
+    assert contact_trust(seen, t + 0.1)[[1, 2]].min() > 0.5
+    assert contact_trust(mpc.config.gait, t + 0.1)[1] == 0
 
 
 def test_an_aborted_swing_lands_at_the_time_planned_at_the_abort():

@@ -684,7 +684,7 @@ class WholeBodyMPC:
 
     def contact_plan(self, times) -> np.ndarray:
         """Contact flags (4, n) at ``times`` [s]: the gait schedule with any aborted swing (the one plan the
-        closed loop's plant and logs share with the MPC; the state estimator still reads the schedule)."""
+        closed loop's plant, state estimator and logs share with the MPC)."""
         return self.push_recovery.contact(times)
 
     @property

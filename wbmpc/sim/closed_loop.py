@@ -41,7 +41,7 @@ from wbmpc.io.logs import LogWriter, RunLog, load_log, save_log
 from wbmpc.ocp.gait import Gait, GaitSchedule
 from wbmpc.ocp.time_grid import node_times
 from wbmpc.sim.disturbances import Disturbance, Kick, Push
-from wbmpc.sim.hardware import EstimatedState, HardwareProfile, estimate_errors
+from wbmpc.sim.hardware import EstimatedState, HardwareProfile, PlannedContacts, estimate_errors
 from wbmpc.sim.plant import ContactPlant, fallen
 from wbmpc.sim.sensing import SensorNoise, StateSensor
 
@@ -83,8 +83,9 @@ class ClosedLoopConfig:
         state: What the MPC and the low level see: ``"ground_truth"`` (the plant's state through
             ``sensor_noise`` and the velocity filter) or ``"estimated"`` (the state estimator
             :class:`wbmpc.estimation.StateEstimator` at the low-level rate on synthesised IMU and encoder
-            readings, with the errors of ``hardware`` (exact without one), contacts from the gait schedule,
-            joint rates filtered at ``velocity_cutoff_hz``). The log keeps both: ``q``, ``v`` true,
+            readings, with the errors of ``hardware`` (exact without one), contacts from the MPC's contact
+            plan (the gait schedule with any swing aborted after a push), joint rates filtered at
+            ``velocity_cutoff_hz``). The log keeps both: ``q``, ``v`` true,
             ``q_meas``, ``v_meas`` what the controller saw.
         hardware: The emulated robot's mismatches (:class:`wbmpc.sim.hardware.HardwareProfile`; PyBullet
             plant only): motor friction, armature, base centre-of-mass offset, torque latency, sensor errors
@@ -513,10 +514,17 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     kp, kd = _joint_gains(robot, config)
     low = LowLevelController(kp, kd, torque_limits=robot.joint_torque_limits)
     sensor = StateSensor(model, per_low * config.plant_dt, config.sensor_noise, config.velocity_cutoff_hz)
+    # The MPC's plan (the gait schedule with any swing aborted after a push) decides the rigid plant's
+    # contacts and the estimator's, and is what the logs record.
+    contact_plan = getattr(mpc, "contact_plan", None) or (lambda times: schedule.sample(times).contact)
     estimator = None
     if config.state == "estimated":
         estimator = EstimatedState(
-            robot, schedule, per_low * config.plant_dt, config.hardware, config.velocity_cutoff_hz
+            robot,
+            PlannedContacts(contact_plan),
+            per_low * config.plant_dt,
+            config.hardware,
+            config.velocity_cutoff_hz,
         )
     ee_id = robot.frame_id(robot.ee_frame) if robot.has_arm else None
     mpc.reset()
@@ -537,7 +545,6 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     cmd = _commands(config, 0.0)
     scene_names = plant.body_names if pybullet else []
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
-    contact_plan = getattr(mpc, "contact_plan", None) or (lambda times: schedule.sample(times).contact)
 
     def run_summary(columns: Mapping, fell: bool) -> dict:  # columns from memory or the streamed file
         summary = summarize(mpc, columns, config, fell, low.violations, plant)

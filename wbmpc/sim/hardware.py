@@ -32,13 +32,15 @@ What the mismatches do to the MPC (issue 13, ``data/hardware/fall_ablation.json`
 
 :class:`EstimatedState` is the estimator in the loop: at the low-level rate it synthesises an IMU reading
 from two consecutive true states (:func:`wbmpc.estimation.synthesize_imu`) and encoder readings, takes the
-contacts from the gait schedule (:func:`wbmpc.estimation.contact_trust`) and runs
+contacts from the MPC's contact plan (the gait schedule with any swing aborted after a push, through
+:class:`PlannedContacts`; :func:`wbmpc.estimation.contact_trust`) and runs
 :class:`wbmpc.estimation.StateEstimator`; the controller sees its estimate instead of the plant's state.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -54,6 +56,7 @@ from wbmpc.estimation import (
 
 __all__ = [
     "EstimatedState",
+    "PlannedContacts",
     "HardwareProfile",
     "estimate_errors",
     "hardware_config",
@@ -228,12 +231,31 @@ def hardware_config(profile: HardwareProfile | None = None, **overrides):
     return ClosedLoopConfig(**(preset | overrides))
 
 
+class PlannedContacts:
+    """A contact plan ``plan(times) -> (n_feet, n)`` flags seen as a gait schedule (``contact(t)``,
+    ``sample(times).contact``), e.g. :meth:`wbmpc.control.mpc.WholeBodyMPC.contact_plan`: the schedule with
+    the swings aborted after a push, so that the estimator trusts the legs the controller put down."""
+
+    def __init__(self, plan):
+        if not callable(plan):
+            raise ValueError(f"plan must be a function times -> contact flags (n_feet, n), got {plan!r}")
+        self.plan = plan
+
+    def sample(self, times) -> SimpleNamespace:
+        times = np.atleast_1d(np.asarray(times, dtype=float))
+        return SimpleNamespace(contact=np.asarray(self.plan(times), dtype=bool))
+
+    def contact(self, t: float) -> np.ndarray:
+        return self.sample([t]).contact[:, 0]
+
+
 class EstimatedState:
     """The state estimator in the closed loop, fed with synthesised IMU and encoder readings.
 
     Args:
         robot: The robot.
-        schedule: Gait or gait schedule deciding the contacts (``contact(t)``, ``sample(times)``).
+        schedule: Gait, gait schedule or :class:`PlannedContacts` deciding the contacts (``contact(t)``,
+            ``sample(times)``).
         dt: Sample period [s] (the low-level period: one :meth:`measure` per period).
         profile: Sensor errors and estimator tuning (``imu``, ``encoder_noise``, ``encoder_velocity_noise``,
             ``estimator``, ``seed``); ``None``: exact sensors.

@@ -48,6 +48,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="rigid-contact Pinocchio plant (the paper's benchmark, default) or PyBullet",
     )
     parser.add_argument("--compiled", action="store_true", help="generate and compile the NLP (cached)")
+    parser.add_argument(
+        "--release",
+        action="store_true",
+        help="with --compiled: build with -O3 -march=native (about 2 min once; 8 %% faster solves than -O1)",
+    )
     parser.add_argument("--kp", type=float, default=0.0, help="joint stiffness of the low level [N m/rad]")
     parser.add_argument("--kd", type=float, default=0.0, help="joint damping of the low level [N m s/rad]")
     parser.add_argument(
@@ -104,6 +109,8 @@ def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -
             parser.error(f"{flag} must be a finite number > 0, got {value}")
     if args.nodes < 3:
         parser.error(f"--nodes must be >= 3 (nodes including the terminal one), got {args.nodes}")
+    if args.release and not args.compiled:
+        parser.error("--release sets the compiler flags of the compiled NLP: add --compiled")
     if args.nodes > MAX_NODES:
         parser.error(f"--nodes must be <= {MAX_NODES} (the paper uses 15), got {args.nodes}")
     for flag, value in {"--kp": args.kp, "--kd": args.kd}.items():
@@ -148,6 +155,10 @@ def main(argv: list[str] | None = None) -> dict:
     if args.duration is None:
         args.duration = pick(full=default_duration, quick=0.5)
     config = MPCConfig(gait=gait, solver=args.solver, compiled=args.compiled)
+    if args.release:
+        from wbmpc.solver.codegen import RELEASE_FLAGS
+
+        config.compile_flags = RELEASE_FLAGS
     start = time.perf_counter()
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=args.nodes), config)
     print(

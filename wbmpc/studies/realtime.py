@@ -32,7 +32,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 # name -> (compiled, BLASFEO, OCP layout (OCPSettings fields), baseline checkout, gcc flags)
 DEFAULT = ("-O1",)
-RELEASE = ("-O3", "-march=native")  # a deployment build: ~7x the build time and 2x gcc's memory
+RELEASE = ("-O3", "-march=native")  # wbmpc.solver.codegen.RELEASE_FLAGS: ~6x the build time, 2x gcc's memory
 NODE0_VARIABLES = {"initial_state_variables": True}  # node 0's state pinned by equality rows
 PAPER_LAYOUT = {"initial_state_variables": True, "ee_force_input": True}  # and the arm force an input
 VARIANTS = {
