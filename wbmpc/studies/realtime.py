@@ -35,6 +35,7 @@ DEFAULT = ("-O1",)
 RELEASE = ("-O3", "-march=native")  # wbmpc.solver.codegen.RELEASE_FLAGS: ~6x the build time, 2x gcc's memory
 NODE0_VARIABLES = {"initial_state_variables": True}  # node 0's state pinned by equality rows
 PAPER_LAYOUT = {"initial_state_variables": True, "ee_force_input": True}  # and the arm force an input
+OPT_IN = ("baseline compiled, -O3 -march=native",)  # run only when named with --variant
 VARIANTS = {
     "compiled, native": (True, "native", {}, False, DEFAULT),
     "compiled, native, -O3 -march=native": (True, "native", {}, False, RELEASE),
@@ -44,6 +45,8 @@ VARIANTS = {
     "in-process, native": (False, "native", {}, False, DEFAULT),
     "in-process, generic": (False, "generic", {}, False, DEFAULT),
     "baseline compiled": (True, "generic", {}, True, DEFAULT),
+    # Opt-in (--variant): the baseline built with the release flags too, for a like-for-like ratio.
+    "baseline compiled, -O3 -march=native": (True, "generic", {}, True, RELEASE),
     "baseline in-process": (False, "generic", {}, True, DEFAULT),
 }
 
@@ -159,7 +162,10 @@ def main(argv: list[str] | None = None) -> dict:
             parser.error(f"{flag} must be >= {low}, got {value}")
     if args.baseline is not None and not (args.baseline / "wbmpc" / "__init__.py").is_file():
         parser.error(f"--baseline {args.baseline} is not a checkout of wbmpc (no wbmpc/__init__.py)")
-    variants = args.variant or [v for v in VARIANTS if args.baseline is not None or not VARIANTS[v][3]]
+    default = [v for v in VARIANTS if v not in OPT_IN]
+    variants = args.variant or [v for v in default if args.baseline is not None or not VARIANTS[v][3]]
+    if args.baseline is None and any(VARIANTS[v][3] for v in variants):
+        parser.error("the baseline variants need --baseline <checkout of an older wbmpc>")
     from wbmpc.sim.closed_loop import machine_description
     from wbmpc.solver import blasfeo
 
