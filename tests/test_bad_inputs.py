@@ -585,6 +585,27 @@ CATALOGUE = [
         C,
         "OCPSettings.initial_state_variables must be True or False",
     ),
+    (
+        "named",
+        "split of a primal vector of the wrong size",
+        lambda: _module_mpc().ocp.split(np.zeros(3)),
+        C,
+        "w must have shape",
+    ),
+    (
+        "named",
+        "split without the parameters that give node 0's state",
+        lambda: _module_mpc().ocp.split(np.zeros(_module_mpc().ocp.n_variables)),
+        C,
+        "split(w, p) needs p",
+    ),
+    (
+        "named",
+        "PlannedContacts of a non-function",
+        lambda: __import__("wbmpc.sim.hardware", fromlist=["PlannedContacts"]).PlannedContacts([1, 0, 1, 1]),
+        C,
+        "plan must be a function times -> contact flags",
+    ),
     ("unclear", "three feet", _three_feet_mpc, C, "has 3 foot frames"),
     (
         "unclear",
@@ -1214,6 +1235,16 @@ def test_command_lines(module, argv, message, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert message in err[-1], err
     assert not started
+
+
+def test_realtime_baseline_variants_need_a_baseline(capsys):
+    """The real-time benchmark refuses a baseline variant without the checkout, before starting any run."""
+    from wbmpc.studies import realtime
+
+    with pytest.raises(SystemExit) as exit_info:
+        realtime.main(["--variant", "baseline compiled"])
+    assert exit_info.value.code == 2
+    assert "the baseline variants need --baseline" in capsys.readouterr().err
 
 
 def test_cli_node_bound_matches_the_ocp():

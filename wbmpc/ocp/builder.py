@@ -271,7 +271,7 @@ class OCP:
         self.stages = infos
         x0 = self.initial_state_value(stages[0], p)
         self.initial_state_function = ca.Function("x0", [P.vector], [x0], ["p"], ["x0"])
-        self.plan_function = self._plan_function(stages, P, dts)
+        self.plan_function = self._plan_function(stages, P, dts, x0)
         self.dts_function = ca.Function("dts", [p["dt_min"], p["dt_max"]], [ca.vertcat(*dts)])
         self.nlp = {"x": ca.vertcat(*x_parts), "p": P.vector, "f": cost, "g": ca.vertcat(*g_parts)}
         self.lbg, self.ubg = np.array(lbg), np.array(ubg)
@@ -451,7 +451,7 @@ class OCP:
             applied[self.robot.ee_frame] = F[n : n + 3] if F.numel() > n else ee_force
         return applied
 
-    def _plan_function(self, stages, P: ParameterLayout, dts) -> ca.Function:
+    def _plan_function(self, stages, P: ParameterLayout, dts, x0: ca.SX) -> ca.Function:
         """``(w, p) -> (dq, v, a, forces, tau)``: the physical plan of any formulation.
 
         ``v`` where the formulation has none (the terminal node of centroidal velocity) repeats the last
@@ -489,7 +489,7 @@ class OCP:
             ca.horzcat(*tau),
         ]
         if self.initial_state_is_parameter:
-            outputs = ca.substitute(outputs, [stages[0].x], [self.initial_state_value(stages[0], p)])
+            outputs = ca.substitute(outputs, [stages[0].x], [x0])
         return ca.Function("plan", [w, P.vector], outputs, ["w", "p"], ["dq", "v", "a", "forces", "tau"])
 
     # --- helpers for solvers and controllers -----------------------------------------------------------

@@ -186,8 +186,8 @@ def nlp_functions(ocp: OCP) -> list[ca.Function]:
 CODEGEN_VERSION = 2  # bump when the generated functions change meaning
 DEFAULT_FLAGS = ("-O1",)
 # The real-time build: 8 % faster solves than -O1 on the default problem (data/bench/real_time.json) for a
-# 6x longer build (about 4 min and 1.3 GB for N = 15 on a 2.5 GHz Xeon); `-march=native` ties the library
-# to the CPU family it was built on (the flags are part of the cache key).
+# 4x longer build (124 s and 0.93 GB against 29 s and 0.57 GB for N = 15 on a 2.5 GHz Xeon); `-march=native`
+# ties the library to the CPU family it was built on (the flags are part of the cache key).
 RELEASE_FLAGS = ("-O3", "-march=native")
 # Modules whose code shapes the generated functions (every cpin module is added by glob).
 # The wbmpc sources the generated code depends on (paths in the package), plus every file of wbmpc/cpin.

@@ -28,11 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
+from wbmpc.solver.codegen import DEFAULT_FLAGS, RELEASE_FLAGS
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 # name -> (compiled, BLASFEO, OCP layout (OCPSettings fields), baseline checkout, gcc flags)
-DEFAULT = ("-O1",)
-RELEASE = ("-O3", "-march=native")  # wbmpc.solver.codegen.RELEASE_FLAGS: ~6x the build time, 2x gcc's memory
+DEFAULT = DEFAULT_FLAGS
+RELEASE = RELEASE_FLAGS  # -O3 -march=native: ~4x the build time, 1.6x gcc's memory
 NODE0_VARIABLES = {"initial_state_variables": True}  # node 0's state pinned by equality rows
 PAPER_LAYOUT = {"initial_state_variables": True, "ee_force_input": True}  # and the arm force an input
 OPT_IN = ("baseline compiled, -O3 -march=native",)  # run only when named with --variant

@@ -25,10 +25,16 @@ from wbmpc.studies.sweeps.engine import (
 BENCHMARK_CASE = "closed_loop_case: trot, rigid plant, 0.5 s, 15 nodes, compiled Fatrop"
 
 
+def _warm(cases: list[dict]) -> None:
+    """Build or load the libraries of ``cases`` and run one case: the first solve of a process loads the
+    library and builds the MPC, which a sweep pays once per worker."""
+    warm_closed_loop_cache(cases)
+    execute(closed_loop_case, cases[0])
+
+
 def _serial_pass(cases: list[dict]) -> list[float]:
     """Warm up this process, then run ``cases`` one after the other: wall time per case [s]."""
-    warm_closed_loop_cache(cases)
-    execute(closed_loop_case, cases[0])  # the first solve of a process loads the library
+    _warm(cases)
     return [execute(closed_loop_case, c)["wall_s"] for c in cases]
 
 
@@ -65,8 +71,7 @@ def benchmark(path: str | Path, workers: int = 2, scheduler_cases: int = 200, pr
     out = {"machine": {"cores": _cores(), "platform": platform.platform(), "python": sys.version.split()[0]}}
     out["machine"]["load_average_before"] = os.getloadavg()
     start = time.perf_counter()
-    warm_closed_loop_cache(cases)
-    execute(closed_loop_case, cases[0])
+    _warm(cases)
     out["warmup_s"] = time.perf_counter() - start
     start = time.perf_counter()
     serial = [execute(closed_loop_case, c) for c in cases]
@@ -76,7 +81,7 @@ def benchmark(path: str | Path, workers: int = 2, scheduler_cases: int = 200, pr
         with local_cluster(workers) as client:
             startup = time.perf_counter() - start
             start = time.perf_counter()
-            client.run(_serial_pass, cases[:1])  # every worker: build the problem, load the library
+            client.run(_warm, cases)  # on every worker
             worker_warmup = time.perf_counter() - start
             run = run_sweep(cases, closed_loop_case, Path(tmp, "cases.csv"), client=client, progress=progress)
             noop = run_sweep(

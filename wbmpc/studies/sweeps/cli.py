@@ -76,7 +76,3 @@ def main(argv: list[str] | None = None) -> SweepRun | dict:
         if args.study == "robustness":
             print(json.dumps(robustness_report(rows), indent=2))
     return run
-
-
-if __name__ == "__main__":
-    main()
