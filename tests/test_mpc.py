@@ -182,6 +182,130 @@ def test_cold_retry_rescues_a_failed_warm_start(robot, monkeypatch):
     assert mpc.stats["cold_retries"] == 1 and mpc.stats["failures"] == 0
 
 
+class _UnconvergedSolver:
+    """Stands in for the ``casadi.nlpsol`` of a solve that stops unconverged: it returns a finite iterate
+    (``w``) and Fatrop's statistics for its iteration cap (``return_flag`` 1)."""
+
+    def __init__(self, w, n_constraints):
+        self.w, self.n_constraints, self.calls = w, n_constraints, []
+
+    def __call__(self, **args):
+        self.calls.append(args)
+        return {
+            "x": self.w.copy(),
+            "g": np.zeros(self.n_constraints),
+            "lam_g": np.ones(self.n_constraints),
+            "f": 0.0,
+        }
+
+    def stats(self):
+        return {
+            "success": False,
+            "return_status": 1,
+            "iter_count": 30,
+            "fatrop": {"return_flag": 1, "iterations_count": 30, "time_total": 1e-3},
+        }
+
+
+PLAN_ARRAYS = ("q", "v", "a", "forces", "tau", "w", "lam_g")
+
+
+def _standing_mpc(robot, **config):
+    mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04, **config)
+    )
+    mpc.verbose = False
+    return mpc
+
+
+def test_an_unconverged_iterate_is_never_applied(robot, monkeypatch):
+    """After a converged plan, a warm solve and its cold retry both stop unconverged (a finite iterate, not
+    an exception): the previous plan comes back unchanged as the fallback, stays the warm start, and is
+    what the low level applies; the iterate's torques, which differ, reach nothing."""
+    mpc = _standing_mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    assert first.success
+    kept = {name: getattr(first, name).copy() for name in PLAN_ARRAYS}
+    rng = np.random.default_rng(0)
+    fake = _UnconvergedSolver(first.w + 5.0 * rng.normal(size=first.w.size), mpc.ocp.n_constraints)
+    monkeypatch.setattr(mpc, "_solver", lambda cold, max_iter=None: fake)
+    second = mpc.solve(q, v, t=0.0125)
+    # The warm start (with the previous duals) and the cold retry (without) both ran and both failed.
+    assert len(fake.calls) == 2 and "lam_g0" in fake.calls[0] and "lam_g0" not in fake.calls[1]
+    assert mpc.stats["failures"] == 1 and mpc.stats["cold_retries"] == 1 and mpc.stats["exceptions"] == 0
+    assert not second.success and second.fallback and not second.hold
+    assert second.status == "max_iter_exceeded" and "iteration cap" in second.reason
+    for name in ("q", "v", "a", "forces", "tau"):
+        np.testing.assert_array_equal(getattr(second, name), kept[name], err_msg=name)
+    assert second.t == first.t  # the previous plan on its own time grid (the low level interpolates it)
+    # The warm start of the next solve is still the converged plan, untouched.
+    assert mpc.previous is first
+    for name, value in kept.items():
+        np.testing.assert_array_equal(getattr(mpc.previous, name), value, err_msg=name)
+    # The unconverged iterate's torques differ by newton metres: applying them would show.
+    iterate_tau = np.asarray(mpc.ocp.plan_function(w=fake.w, p=fake.calls[0]["p"])["tau"]).T
+    assert np.abs(iterate_tau[0] - first.tau[0]).max() > 1.0
+    # The low level applies the previous plan's torque (pure feed-forward: kp = kd = 0).
+    from wbmpc.control.low_level import LowLevelController
+
+    applied, previous = LowLevelController(), LowLevelController()
+    applied.update(second)
+    previous.update(first)
+    for t in (0.0125, 0.014, 0.02):
+        np.testing.assert_array_equal(applied.torque(t, q, v), previous.torque(t, q, v))
+
+
+def test_a_closed_loop_keeps_applying_the_last_converged_plan(robot, monkeypatch):
+    """Every solve after the first stops unconverged (injected): each logged plan is the first one, the
+    applied torques are its interpolation, and the MPC ends with it as the warm start."""
+    mpc = _standing_mpc(robot)
+    real = mpc._solver
+    fakes = []
+
+    def unconverged_after_the_first(cold, max_iter=None):
+        if mpc.previous is None:
+            return real(cold, max_iter)
+        w = mpc.previous.w + 0.2
+        fakes.append(_UnconvergedSolver(w, mpc.ocp.n_constraints))
+        return fakes[-1]
+
+    monkeypatch.setattr(mpc, "_solver", unconverged_after_the_first)
+    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, arm_reference=None), progress=False)
+    log = result.log.arrays()
+    assert len(fakes) == 2 * (len(log["solve_t"]) - 1) >= 10  # warm start and cold retry per tick
+    assert log["success"][0] and not log["success"][1:].any() and log["fallback"][1:].all()
+    first = mpc.previous
+    assert first.t == 0.0 and first.success
+    np.testing.assert_array_equal(log["plan_tau"], np.tile(first.tau[0], (len(log["solve_t"]), 1)))
+    from wbmpc.control.low_level import LowLevelController
+
+    reference = LowLevelController(torque_limits=robot.joint_torque_limits)
+    reference.update(first)
+    expected = [reference.torque(t, q, v) for t, q, v in zip(log["t"], log["q"], log["v"], strict=True)]
+    np.testing.assert_allclose(log["tau"], expected, rtol=0, atol=1e-12)
+    assert not result.fell
+
+
+def test_a_real_iteration_cap_falls_back_to_the_previous_plan(robot):
+    """Fatrop itself stopped at one iteration (warm start and cold retry) after a push: the previous plan."""
+    mpc = _standing_mpc(robot, max_iter=1, retry_max_iter=1)
+    q = robot.q_nominal
+    first = mpc.solve(q, np.zeros(robot.nv), t=0.0)  # the cold start keeps its own cap (200)
+    assert first.success
+    kept = {name: getattr(first, name).copy() for name in PLAN_ARRAYS}
+    pushed = np.zeros(robot.nv)
+    pushed[[1, 5]] = 0.5  # sideways and yawing: one iteration cannot converge
+    second = mpc.solve(q, pushed, t=0.0125)
+    assert not second.success and second.fallback and not second.hold
+    assert second.status == "max_iter_exceeded" and mpc.stats["cold_retries"] == 1
+    for name in ("q", "v", "a", "forces", "tau"):
+        np.testing.assert_array_equal(getattr(second, name), kept[name], err_msg=name)
+    assert mpc.previous is first
+    for name, value in kept.items():
+        np.testing.assert_array_equal(getattr(first, name), value, err_msg=name)
+
+
 def test_closed_loop_trot_stays_upright(robot):
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("trot")))
     result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.5), progress=False)
