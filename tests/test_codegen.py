@@ -157,6 +157,21 @@ def _move_joint(robot, joint, offset):
     robot.model.jointPlacements[j] = pin.SE3(old.rotation, old.translation + np.asarray(offset))
 
 
+def _rotate_joint(robot, joint, axis, angle):
+    """Turn a joint's placement in its parent by ``angle`` [rad] about ``axis``, its origin unmoved."""
+    j = robot.model.getJointId(joint)
+    old = robot.model.jointPlacements[j]
+    turn = pin.AngleAxis(angle, np.asarray(axis, dtype=float)).matrix()
+    robot.model.jointPlacements[j] = pin.SE3(old.rotation @ turn, old.translation)
+
+
+def _rotate_frame(robot, name, axis, angle):
+    """Turn a frame's placement by ``angle`` [rad] about ``axis``, its origin unmoved."""
+    frame = robot.model.frames[robot.model.getFrameId(name)]
+    turn = pin.AngleAxis(angle, np.asarray(axis, dtype=float)).matrix()
+    frame.placement = pin.SE3(frame.placement.rotation @ turn, frame.placement.translation)
+
+
 def _set_gravity(robot, g):
     robot.model.gravity = pin.Motion(np.array([0.0, 0.0, -g]), np.zeros(3))
 
@@ -236,6 +251,33 @@ MODEL_CHANGES = {
         {"model.items.limits.RL_calf_joint"},
     ),
     "foot_radius": (load_b1, lambda r: setattr(r, "foot_radius", 0.05), {"foot_radius"}),
+    # Rotations alone (the origins stay): the placement's rotation is part of the generated kinematics.
+    "joint_rotation": (
+        load_b1,
+        lambda r: _rotate_joint(r, "FR_thigh_joint", (1.0, 0.0, 0.0), 0.02),
+        {"model.items.joints.FR_thigh_joint"},
+    ),
+    "frame_rotation": (
+        load_b1_z1,
+        lambda r: _rotate_frame(r, "gripper_center", (0.0, 0.0, 1.0), 0.02),
+        {"model.items.frames.gripper_center"},
+    ),
+    # Changes far below any rounding a careless fingerprint might do (a few significant digits).
+    "tiny_mass": (
+        load_b1,
+        lambda r: _edit_inertia(r, "FL_calf_joint", mass=1e-6),
+        {"mass", "model.items.inertias.FL_calf_joint"},
+    ),
+    "tiny_rotational_inertia": (
+        load_b1,
+        lambda r: _edit_inertia(r, "RL_thigh_joint", scale=1.0 + 1e-6),
+        {"model.items.inertias.RL_thigh_joint"},
+    ),
+    "tiny_joint_offset": (
+        load_b1,
+        lambda r: _move_joint(r, "RR_calf_joint", (0.0, 0.0, 1e-7)),
+        {"model.items.joints.RR_calf_joint"},
+    ),
 }
 
 
@@ -250,6 +292,10 @@ def test_cache_key_changes_with_the_numeric_model(change):
     changes = codegen.describe_changes(before, after)
     assert expected <= set(changes), changes  # the record says what changed ...
     assert all(c.split(".")[0] in {"gravity", "mass", "foot_radius", "model"} for c in changes), changes
+    # ... and the same change made again gives the same key (the fingerprint is canonical).
+    again = loader()
+    edit(again)
+    assert codegen.cache_key(OCP(again, SMALL), FLAGS)[0] == changed_key
 
 
 def test_cache_key_changes_with_a_locked_joint_value():
