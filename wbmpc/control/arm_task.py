@@ -5,7 +5,13 @@ The MPC constrains the end-effector *velocity* (world axes). To track a *positio
 .. math::  v^{cmd} = \\dot p^{ref}(t) + K_p\\,(p^{ref}(t) - p_{ee}),
 
 with the reference expressed in the heading frame of the robot (origin below the base at the ground,
-x forward, z up, rotating with the base yaw), so that it travels with the robot while it walks.
+x forward, z up, rotating with the base yaw), so that it travels with the robot while it walks: the command
+carries the heading frame's own velocity at the hand, the commanded base velocity plus
+:math:`\\omega_z \\times (p_{ee} - p_{base})` for a yaw-rate command.
+
+"Hold the arm still" means still in the heading frame (:meth:`ArmReference.still`): a hand held still in
+the world while the base walks anchors the robot until the arm's reach runs out (the MPC's precheck
+``ee_world_hold_with_walking_base`` says when).
 """
 
 from __future__ import annotations
@@ -49,6 +55,11 @@ class ArmReference:
             checks.vector("ArmReference.center", self.center, 3, unit="m")
         checks.vector("ArmReference.amplitude", self.amplitude, 3, unit="m")
         checks.vector("ArmReference.phase", self.phase, 3, unit="rad")
+
+    @classmethod
+    def still(cls, center: tuple[float, float, float] | None = None) -> ArmReference:
+        """Hold the end effector still in the heading frame (at ``center``, or where it starts)."""
+        return cls(center=center, amplitude=(0.0, 0.0, 0.0), ramp=0.0)
 
     def centered_at(self, q: np.ndarray, ee_position: np.ndarray) -> ArmReference:
         """This reference with its centre at a world position, expressed in the heading frame of ``q``."""
@@ -94,6 +105,8 @@ def velocity_command(
     kp: float = 4.0,
     node_times: np.ndarray | None = None,
     max_speed: float = 0.6,
+    yaw_rate: float = 0.0,
+    local_velocity: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """End-effector velocity command [m/s] (world) and the world reference position [m] at ``t``.
 
@@ -113,6 +126,10 @@ def velocity_command(
         kp: Position gain [1/s].
         node_times: Times [s] of the MPC stages (N-1,), or ``None`` for a single command.
         max_speed: Norm cap [m/s] on each command (keeps a hard velocity constraint feasible).
+        yaw_rate: Commanded yaw rate [rad/s]: the heading frame turns, carrying the hand at
+            ``omega_z x (p_ee - p_base)`` (horizontal).
+        local_velocity: Extra velocity [m/s] (3,) of the reference in the heading frame (e.g. a moving
+            hold point); ``None``: none.
 
     Returns:
         ``(v, p_ref)``: command (3,) or (3, N-1), and the reference position (3,).
@@ -120,7 +137,12 @@ def velocity_command(
     R, origin = heading_frame(q)
     p_ref = origin + R @ reference.local(t)[0]
     error = p_ref - np.asarray(ee_position)
+    lever = np.asarray(ee_position, dtype=float) - np.array([q[0], q[1], 0.0])
+    # The heading frame carries the hand: commanded base velocity plus the yaw rate about the base.
     carry = np.array([base_velocity_world[0], base_velocity_world[1], 0.0])
+    carry += yaw_rate * np.array([-lever[1], lever[0], 0.0])
+    if local_velocity is not None:
+        carry = carry + R @ checks.vector("local_velocity", local_velocity, 3, unit="m/s")
     times = np.array([t]) if node_times is None else np.asarray(node_times)
     commands = np.empty((3, times.size))
     for k, tk in enumerate(times):

@@ -567,6 +567,100 @@ def arm_commands_without_arm(robot: Robot, commands) -> list[Finding]:
     ]
 
 
+# A hand whose commanded world velocity differs from the base's by more than this share of the base's speed
+# (and at least HAND_SPEED_TOLERANCE) does not move with the body.
+HAND_SPEED_SHARE = 0.25
+HAND_SPEED_TOLERANCE = 0.05  # [m/s]
+
+
+def arm_reach(robot: Robot) -> dict:
+    """The arm's reach [m]: the length of its kinematic chain from the first arm joint to the end effector
+    (the sum of the joint-to-joint distances at the nominal pose: the hand cannot get further than this from
+    that joint).
+
+    Returns:
+        ``{"shoulder_joint": name, "reach": R}``; ``{}`` for a robot without an arm.
+    """
+    if not robot.has_arm:
+        return {}
+    info = _info(robot)
+    if info.arm_reach is None:
+        model, data = info.model, info.data
+        pin.framesForwardKinematics(model, data, robot.q_nominal)
+        joints = [model.getJointId(name) for name in info.arm_names]
+        points = [data.oMi[j].translation.copy() for j in joints] + [data.oMf[info.ee_id].translation.copy()]
+        length = float(sum(np.linalg.norm(b - a) for a, b in zip(points[:-1], points[1:], strict=True)))
+        info.arm_reach = {"shoulder_joint": info.arm_names[0], "reach": length, "joint_id": joints[0]}
+    return {k: info.arm_reach[k] for k in ("shoulder_joint", "reach")}
+
+
+def ee_world_hold(robot: Robot, q: np.ndarray, commands) -> list[Finding]:
+    """Does a constant world end-effector velocity command outrun the base? (a hand held still in the world
+    while the base walks anchors the robot until the arm's reach runs out).
+
+    Checks the paper's command, one end-effector velocity held over the horizon (``commands.ee_velocity``
+    of shape (3,)); per-stage commands (a reference followed in the heading frame) are not checked. The hand
+    moves relative to the arm's first joint at ``ee_velocity - (v_base + omega_z x (p_shoulder - p_base))``;
+    when that differs from zero by more than :data:`HAND_SPEED_SHARE` of the base's speed, the finding (a
+    warning: the arm's posture cost and joint limits resist long before) gives the time and the walked
+    distance until the hand leaves the arm's reach (:func:`arm_reach`, an upper bound).
+
+    Args:
+        robot: The robot.
+        q: Measured configuration (nq,).
+        commands: :class:`wbmpc.control.mpc.Commands` (base velocity and yaw rate in the heading frame,
+            end-effector velocity in world axes).
+
+    Returns:
+        ``[]`` or one ``ee_world_hold_with_walking_base`` warning.
+    """
+    ee_velocity = np.asarray(getattr(commands, "ee_velocity", np.zeros(3)), dtype=float)
+    if not robot.has_arm or ee_velocity.shape != (3,):
+        return []
+    base = np.asarray(commands.base_linear_velocity, dtype=float)
+    yaw_rate = float(np.asarray(commands.base_angular_velocity, dtype=float)[2])
+    if np.linalg.norm(base[:2]) < SPEED_TOLERANCE and abs(yaw_rate) < SPEED_TOLERANCE:
+        return []
+    reach = arm_reach(robot)
+    info = _info(robot)
+    pin.framesForwardKinematics(info.model, info.data, q)
+    shoulder = info.data.oMi[info.arm_reach["joint_id"]].translation
+    hand = info.data.oMf[info.ee_id].translation
+    yaw = math.atan2(2.0 * (q[6] * q[5] + q[3] * q[4]), 1.0 - 2.0 * (q[4] ** 2 + q[5] ** 2))
+    c, s = math.cos(yaw), math.sin(yaw)
+    base_world = np.array([c * base[0] - s * base[1], s * base[0] + c * base[1], 0.0])
+    lever = shoulder - np.array([q[0], q[1], shoulder[2]])
+    shoulder_velocity = base_world + yaw_rate * np.array([-lever[1], lever[0], 0.0])
+    relative = ee_velocity - shoulder_velocity
+    r0 = hand - shoulder
+    a, b = float(relative @ relative), float(r0 @ relative)
+    c0 = float(r0 @ r0) - reach["reach"] ** 2
+    if math.sqrt(a) < max(HAND_SPEED_TOLERANCE, HAND_SPEED_SHARE * float(np.linalg.norm(shoulder_velocity))):
+        return []
+    t_out = 0.0 if c0 >= 0 else (-b + math.sqrt(b * b - a * c0)) / a
+    walked = float(np.linalg.norm(base_world) * t_out)
+    return [
+        Finding(
+            "ee_world_hold_with_walking_base",
+            "warning",
+            f"the end-effector velocity command {_vec2(ee_velocity)} m/s (world, held over the horizon) does "
+            f"not move with the base commanded at {_vec2(base_world)} m/s and {yaw_rate:.2f} rad/s: the hand "
+            f"leaves the arm's reach ({reach['reach']:.2f} m from {reach['shoulder_joint']}) after at most "
+            f"{t_out:.1f} s, {walked:.2f} m of walking, and then anchors the robot; to hold it still "
+            "relative to the body use the heading frame (ClosedLoopConfig.ee_velocity_frame='heading' or "
+            "ArmReference.still()), or give it the base's velocity",
+            {
+                "ee_velocity": ee_velocity.tolist(),
+                "base_velocity_world": base_world.tolist(),
+                "yaw_rate": yaw_rate,
+                "reach_m": reach["reach"],
+                "time_to_reach_limit_s": t_out,
+                "distance_m": walked,
+            },
+        )
+    ]
+
+
 def run_prechecks(
     robot: Robot,
     q: np.ndarray,
@@ -599,6 +693,8 @@ def run_prechecks(
             findings += speed_feasibility(
                 robot, gait, commands.base_linear_velocity, commands.base_angular_velocity
             )
+        if state_ok:
+            findings += ee_world_hold(robot, q, commands)
     return sorted(findings, key=lambda f: f.severity != "error")
 
 
@@ -694,6 +790,7 @@ class _RobotInfo:
     velocity_limits: np.ndarray
     reach: dict | None = None
     foot_offsets: np.ndarray | None = None  # nominal foot positions from the base, x-y (n_feet, 2)
+    arm_reach: dict | None = None  # see arm_reach()
 
 
 _INFO: dict[int, _RobotInfo] = {}
@@ -738,6 +835,10 @@ def _nominal_geometry(robot: Robot) -> tuple[dict, np.ndarray]:
             [info.data.oMf[robot.frame_id(f)].translation[:2] - q0[:2] for f in robot.foot_frames]
         )
     return info.reach, info.foot_offsets
+
+
+def _vec2(x) -> str:
+    return "[" + ", ".join(f"{float(c):.2f}" for c in np.ravel(x)) + "]"
 
 
 def _vec(x) -> str:

@@ -1,7 +1,6 @@
 """Gait schedules, swing-foot vertical velocity reference and nominal contact-force distribution.
 
-Foot order everywhere in wbmpc is the Pinocchio leg order FOOT_NAMES = ("FL", "FR", "RL", "RR")
-SCHEDULE_TICK = 5e-4  # [s] resolution of every contact schedule: the default plant step:
+Foot order everywhere in wbmpc is the Pinocchio leg order FOOT_NAMES = ("FL", "FR", "RL", "RR"):
 front-left, front-right, rear-left, rear-right. Arrays indexed by foot have that order on axis 0.
 
 A gait is periodic with period P [s]. Foot i swings while its local phase
@@ -17,6 +16,8 @@ plant (sampled at its own steps) can never put it on different sides of an MPC t
 
 :class:`GaitSchedule` strings gaits together in time (stand, then trot, then stand); a single
 :class:`Gait` is a one-segment schedule. Both offer the same ``sample`` / ``contact`` / ``swing_phase``.
+A schedule's segments also carry their base velocity commands (:meth:`GaitSchedule.velocity_at`): a stand
+segment stands still unless told otherwise, e.g. ``"stand:2,trot@0.5:4,trot@0.3/0/0.3:4"``.
 """
 
 from __future__ import annotations
@@ -144,6 +145,12 @@ class Gait:
         """Contact flags (4,) bool at time t [s], True = stance."""
         return self.sample(np.array([_finite("t", t)])).contact[:, 0]
 
+    def velocity_at(self, t: float) -> tuple[float, float, float] | None:
+        """Base velocity command of this gait (as :meth:`GaitSchedule.velocity_at`): zero for a gait whose
+        feet never swing (stand), ``None`` (the run's command) otherwise."""
+        _finite("t", t)
+        return (0.0, 0.0, 0.0) if self.swing_fraction == 0.0 else None
+
     def swing_phase(self, t: float) -> np.ndarray:
         """Swing phase (4,) at time t [s]: elapsed fraction of the swing in [0, 1), 0 for stance feet."""
         return self.sample(np.array([_finite("t", t)])).swing_phase[:, 0]
@@ -171,14 +178,24 @@ class GaitSchedule:
     """Gaits strung together in time: e.g. stand 2 s, trot 6 s, stand (the last gait goes on).
 
     Segment j runs its gait from its start tick, its cycle restarting there (a trot after a stand lifts its
-    first pair at the switch). A switch never cuts a swing: a segment whose nominal end falls while a foot
+    first pair at the switch); a segment of the same gait as the one before (a change of speed) continues
+    its cycle. A switch never cuts a swing: a segment whose nominal end falls while a foot
     is in the air (in swing just before and at that tick) is extended to the next tick where no foot is,
     and :attr:`notes` says so. The MPC samples the schedule on its stage times, so its preview sees the
     coming gait before the switch.
 
+    Each segment may carry its base velocity command ``(vx [m/s], vy [m/s], yaw rate [rad/s])`` in the
+    heading frame (:meth:`velocity_at`): a stand segment without one stands still (zero), a walking segment
+    without one takes the run's command.
+
     Args:
-        segments: ``(gait, duration [s])`` pairs; the last duration only counts for :attr:`duration`.
+        segments: ``(gait, duration [s])`` pairs or ``(gait, duration [s], velocity)`` triples; the last
+            duration only counts for :attr:`duration`.
         tick: Schedule resolution [s] (the plant step); every gait must share it.
+
+    Raises:
+        ValueError: an empty schedule, a segment that is not ``(Gait, duration[, velocity])``, a duration
+            that is not > 0, a velocity that is not 3 finite numbers, gaits of another tick.
     """
 
     def __init__(self, segments, tick: float = SCHEDULE_TICK):
@@ -186,12 +203,17 @@ class GaitSchedule:
         if not segments:
             raise ValueError("GaitSchedule needs at least one (gait, duration) segment")
         self.tick = _finite("tick", tick, positive=True)
-        starts, notes, gaits, durations = [0], [], [], []
+        starts, origins, notes, gaits, durations, velocities = [0], [0], [], [], [], []
         for j, segment in enumerate(segments):
             try:
-                gait, duration = segment
+                gait, duration, *rest = segment
             except (TypeError, ValueError) as err:
                 raise ValueError(f"segment {j} must be a (gait, duration) pair, got {segment!r}") from err
+            if len(rest) > 1:
+                raise ValueError(
+                    f"segment {j} must be (gait, duration) or (gait, duration, velocity), got {segment!r}"
+                )
+            velocities.append(_segment_velocity(j, rest[0]) if rest and rest[0] is not None else None)
             if not isinstance(gait, Gait):
                 raise ValueError(f"segment {j}: {gait!r} is not a Gait (see wbmpc.ocp.gait.make_gait)")
             if abs(gait.tick - self.tick) > 1e-15:
@@ -199,13 +221,20 @@ class GaitSchedule:
                     f"segment {j}: gait tick {gait.tick} s differs from the schedule's {self.tick} s"
                 )
             duration = _finite(f"segment {j} ({gait.name}) duration", duration, positive=True)
+            if j > 0:
+                # Each segment's gait cycle starts at its own start, or goes on from its predecessor's when
+                # the gait is the same (a change of speed must not lift the pair that just landed).
+                origins.append(origins[-1] if gait == gaits[-1] else starts[-1])
             gaits.append(gait)
             durations.append(duration)
             if j == len(segments) - 1:
                 break
             nominal = starts[-1] + max(1, round(duration / self.tick))
             end = nominal
-            while gait.mid_swing(end - starts[-1]) and end - nominal < gait._period_ticks:
+            next_gait = segments[j + 1][0] if isinstance(segments[j + 1], tuple | list) else None
+            while (
+                next_gait != gait and gait.mid_swing(end - origins[-1]) and end - nominal < gait._period_ticks
+            ):
                 end += 1
             if end != nominal:
                 notes.append(
@@ -215,7 +244,9 @@ class GaitSchedule:
                 )
             starts.append(end)
         self.gaits = tuple(gaits)
+        self.velocities = tuple(velocities)
         self.start_ticks = np.asarray(starts, dtype=np.int64)
+        self.cycle_origins = np.asarray(origins, dtype=np.int64)  # tick at which each segment's cycle starts
         self.notes = tuple(notes)
         self.duration = float(self.start_ticks[-1] * self.tick + durations[-1])
 
@@ -224,7 +255,8 @@ class GaitSchedule:
         """``"stand:2+trot:6+stand:2"`` style (segment durations after any extension)."""
         ends = [*(self.start_ticks[1:] * self.tick), self.duration]
         starts = self.start_ticks * self.tick
-        return "+".join(f"{g.name}:{e - s:g}" for g, s, e in zip(self.gaits, starts, ends, strict=True))
+        items = zip(self.gaits, self.velocities, starts, ends, strict=True)
+        return "+".join(f"{g.name}{_velocity_spec(v)}:{e - s:g}" for g, v, s, e in items)
 
     @property
     def start_times(self) -> np.ndarray:
@@ -240,6 +272,15 @@ class GaitSchedule:
         """The gait in force at time t [s]."""
         return self.gaits[int(self.segment_index(np.array([_finite("t", t)]))[0])]
 
+    def velocity_at(self, t: float) -> tuple[float, float, float] | None:
+        """Base velocity command ``(vx [m/s], vy [m/s], yaw rate [rad/s])`` (heading frame) of the segment in
+        force at time ``t`` [s]: its own, zero for a stand segment without one, ``None`` (the run's
+        command) for a walking segment without one."""
+        j = int(self.segment_index(np.array([_finite("t", t)]))[0])
+        if self.velocities[j] is not None:
+            return self.velocities[j]
+        return (0.0, 0.0, 0.0) if self.gaits[j].swing_fraction == 0.0 else None
+
     def sample(self, times) -> GaitSample:
         """Contact flags, swing phases and swing durations of the 4 feet at the given times [s]."""
         ticks = to_ticks(times, self.tick)
@@ -248,7 +289,7 @@ class GaitSchedule:
         contact, phase, duration = np.ones((4, n), bool), np.zeros((4, n)), np.zeros((4, n))
         for j in np.unique(index):
             cols = index == j
-            s = self.gaits[j].sample_ticks(ticks[cols] - self.start_ticks[j])
+            s = self.gaits[j].sample_ticks(ticks[cols] - self.cycle_origins[j])
             contact[:, cols], phase[:, cols], duration[:, cols] = s.contact, s.swing_phase, s.swing_duration
         return GaitSample(contact, phase, contact.sum(axis=0), duration)
 
@@ -264,14 +305,55 @@ class GaitSchedule:
         return f"GaitSchedule({self.name!r}, tick={self.tick})"
 
 
+def _segment_velocity(j: int, velocity) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(x) for x in velocity)
+    except (TypeError, ValueError):
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(x) for x in values):
+        raise ValueError(
+            f"segment {j} velocity must be 3 finite numbers (vx [m/s], vy [m/s], yaw rate [rad/s]), "
+            f"got {velocity!r}"
+        )
+    return values
+
+
+def _velocity_spec(velocity) -> str:
+    """``"@vx/vy/wz"`` of a segment velocity (shortest form), or "" for none."""
+    if velocity is None:
+        return ""
+    parts = [f"{x:g}" for x in velocity]
+    while len(parts) > 1 and velocity[len(parts) - 1] == 0.0:
+        parts.pop()
+    return "@" + "/".join(parts)
+
+
 def parse_gait_schedule(spec: str, period: float = 0.8, tick: float = SCHEDULE_TICK) -> GaitSchedule:
     """A schedule from ``"stand:2,trot:6,stand:2"`` (gait names and durations [s]; a lone name such as
-    ``"trot"`` is one segment that goes on), every gait with cycle ``period`` [s]."""
+    ``"trot"`` is one segment that goes on), every gait with cycle ``period`` [s].
+
+    A segment may name its base velocity command after ``@``: ``trot@0.5:4`` (forward 0.5 m/s),
+    ``trot@0.3/0.1:4`` (and 0.1 m/s to the left), ``trot@0/0/0.3:4`` (a 0.3 rad/s yaw rate); heading frame.
+    Without one a stand segment stands still and a walking segment takes the run's command.
+    """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"gait schedule must be a string like 'stand:2,trot:6,stand:2', got {spec!r}")
     segments = []
     for item in spec.split(","):
         name, sep, duration = item.strip().partition(":")
+        name, at, velocity_spec = name.partition("@")
+        velocity = None
+        if at:
+            try:
+                values = [float(x) for x in velocity_spec.split("/")]
+            except ValueError:
+                values = []
+            if not 1 <= len(values) <= 3 or not all(math.isfinite(x) for x in values):
+                raise ValueError(
+                    f"gait schedule item {item!r}: the velocity after '@' must be vx[/vy[/yaw rate]] "
+                    f"(finite numbers, m/s and rad/s), e.g. 'trot@0.5:4', got {velocity_spec!r}"
+                )
+            velocity = tuple(values + [0.0] * (3 - len(values)))
         if not sep:
             if "," in spec:
                 raise ValueError(f"gait schedule item {item!r} needs a duration, e.g. '{name}:2'")
@@ -284,7 +366,7 @@ def parse_gait_schedule(spec: str, period: float = 0.8, tick: float = SCHEDULE_T
             ) from err
         if seconds == float("inf"):
             seconds = 1e9  # a single gait that goes on
-        segments.append((make_gait(name.strip(), period, tick), seconds))
+        segments.append((make_gait(name.strip(), period, tick), seconds, velocity))
     return GaitSchedule(segments, tick)
 
 

@@ -5,7 +5,8 @@ Two plants: Pinocchio's forward dynamics with the scheduled feet in rigid contac
 (:class:`wbmpc.sim.pybullet_plant.PyBulletPlant`: contacts, friction, scene objects, disturbances).
 
 Timing: without computation delay (``delay="off"``) the simulated time waits for each solve, as in the
-paper's first simulations. With delay (``"measured"``: the solve's wall time, or a fixed number of seconds)
+paper's first simulations. With delay (``"measured"``: the wall time of the whole solve call on this machine,
+or a fixed number of seconds)
 the simulator keeps running on the previous plan while the solver works: the new plan reaches the low
 level ``delay`` later (rounded up to plant steps), and the next solve starts at the first MPC tick after
 that (a real-time loop cannot start a solve before the previous one returns).
@@ -58,16 +59,27 @@ class ClosedLoopConfig:
         plant: ``"rigid"`` (Pinocchio forward dynamics, scheduled feet in rigid contact: the paper's
             benchmark) or ``"pybullet"`` (a physics engine: contacts happen, feet can slip).
         kp, kd: Joint PD gains of the low level [N m/rad], [N m s/rad] (paper, simulation without delay: 0).
-        base_velocity: Commanded base linear velocity [m/s], heading frame.
-        base_yaw_rate: Commanded yaw rate [rad/s].
-        arm_reference: End-effector position reference, or ``None`` for a constant velocity command.
-        arm_kp: Position gain [1/s] of the arm reference feedback.
+        base_velocity: Commanded base linear velocity [m/s], heading frame, of the walking segments; a gait
+            schedule's segments may name their own (``trot@0.5:4``, :meth:`GaitSchedule.velocity_at`) and a
+            stand segment stands still unless it does.
+        base_yaw_rate: Commanded yaw rate [rad/s] (of the walking segments, as ``base_velocity``).
+        arm_reference: End-effector position reference (heading frame), or ``None`` for the ``ee_velocity``
+            command in ``ee_velocity_frame``.
+        arm_kp: Position gain [1/s] of the arm reference feedback (and of the heading-frame hold).
         arm_preview: One end-effector velocity per MPC stage from the reference's future (True), or the
             paper's single velocity held over the horizon (False).
-        ee_velocity: Constant end-effector velocity command [m/s] used when there is no arm reference.
+        ee_velocity: End-effector velocity command [m/s] used when there is no arm reference, in
+            ``ee_velocity_frame``: zero holds the hand still.
+        ee_velocity_frame: ``"heading"`` (default): ``ee_velocity`` is relative to the heading frame, which
+            carries the hand as the base walks and turns (a hold point moving at ``ee_velocity`` with
+            ``arm_kp`` feedback, so zero keeps the hand where it started relative to the body);
+            ``"world"``: ``ee_velocity`` is the hand's world velocity, held over the horizon (the paper's
+            command; zero pins the hand in the world, which a walking base cannot sustain for long: the
+            MPC's precheck ``ee_world_hold_with_walking_base`` says after how far).
         ee_force: Commanded end-effector force [N], world.
         max_tilt: Roll/pitch [rad] beyond which the run counts as a fall.
-        delay: Computation delay: ``"off"``, ``"measured"`` (each solve's wall time) or seconds.
+        delay: Computation delay: ``"off"``, ``"measured"`` (the wall time of each whole
+            :meth:`~wbmpc.control.mpc.WholeBodyMPC.solve` call) or seconds.
         sensor_noise: Measurement noise (``None``: ground truth).
         velocity_cutoff_hz: Joint-velocity low-pass cut-off [Hz] (paper: 50; ``None``: unfiltered).
         scene: PyBullet scene objects (:class:`~wbmpc.sim.pybullet_plant.Box`, ``Wall``, ``Payload``).
@@ -106,6 +118,7 @@ class ClosedLoopConfig:
     arm_kp: float = 4.0
     arm_preview: bool = True
     ee_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ee_velocity_frame: str = "heading"
     ee_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_tilt: float = 1.0
     delay: str | float = "off"
@@ -129,6 +142,11 @@ class ClosedLoopConfig:
             raise ValueError(f"delay must be 'off', 'measured' or seconds >= 0, got {self.delay!r}")
         if self.plant not in ("rigid", "pybullet"):
             raise ValueError(f"unknown plant {self.plant!r}; available: 'rigid', 'pybullet'")
+        if self.ee_velocity_frame not in ("heading", "world"):
+            raise ValueError(
+                "ClosedLoopConfig.ee_velocity_frame must be 'heading' or 'world', "
+                f"got {self.ee_velocity_frame!r}"
+            )
         if self.plant == "rigid" and (self.scene or self.disturbances):
             raise ValueError(
                 "scene objects and disturbances need plant='pybullet' (the rigid plant has none)"
@@ -252,6 +270,7 @@ class ClosedLoopLog:
     foot_forces: list = field(default_factory=list)
     ee_force_sim: list = field(default_factory=list)
     base_velocity_cmd: list = field(default_factory=list)
+    base_yaw_rate_cmd: list = field(default_factory=list)
     ee_force_cmd: list = field(default_factory=list)
     apply_t: list = field(default_factory=list)
     plan_q: list = field(default_factory=list)
@@ -529,9 +548,13 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     ee_id = robot.frame_id(robot.ee_frame) if robot.has_arm else None
     mpc.reset()
     arm_reference = config.arm_reference
-    if ee_id is not None and arm_reference is not None and arm_reference.center is None:
+    hold = None  # the heading-frame hold point of an ``ee_velocity`` command: [position, time of it]
+    if ee_id is not None and (arm_reference is not None or config.ee_velocity_frame == "heading"):
         pin.framesForwardKinematics(model, data, q0)
-        arm_reference = arm_reference.centered_at(q0, data.oMf[ee_id].translation)
+        if arm_reference is None:
+            hold = [ArmReference.still().centered_at(q0, data.oMf[ee_id].translation).center, 0.0]
+        elif arm_reference.center is None:
+            arm_reference = arm_reference.centered_at(q0, data.oMf[ee_id].translation)
     kicks = {round(d.time / config.plant_dt): d for d in config.disturbances if isinstance(d, Kick)}
     pushes = [d for d in config.disturbances if isinstance(d, Push)]
     fell = False
@@ -542,7 +565,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
         q_meas, v_meas = estimator.reset(state.q, state.v)
     pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
     busy_until = 0  # plant step before which no new solve can start (the solver is working)
-    cmd = _commands(config, 0.0)
+    cmd = _commands(config, 0.0, schedule)
     scene_names = plant.body_names if pybullet else []
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
 
@@ -571,7 +594,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
         if step % per_mpc == 0 and step >= busy_until:
             if sensor.is_ground_truth and estimator is None:
                 q_meas, v_meas = q.copy(), v.copy()
-            cmd = _commands(config, t)
+            cmd = _commands(config, t, schedule)
             commands = Commands(
                 base_linear_velocity=cmd["base_velocity"],
                 base_angular_velocity=np.array([0, 0, cmd["base_yaw_rate"]]),
@@ -580,17 +603,25 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if ee_id is not None:
                 pin.framesForwardKinematics(model, data, q_meas)
                 ee_pos = data.oMf[ee_id].translation.copy()
-                if arm_reference is not None:
+                if arm_reference is not None or hold is not None:
+                    local_velocity = None
+                    reference = arm_reference
+                    if hold is not None:  # the hold point moves at the commanded velocity (heading frame)
+                        hold[0] = tuple(np.asarray(hold[0]) + cmd["ee_velocity"] * (t - hold[1]))
+                        hold[1] = t
+                        reference, local_velocity = ArmReference.still(hold[0]), cmd["ee_velocity"]
                     R_heading, _ = heading_frame(q_meas)
                     stage_times = node_times(mpc.time_steps(), t)[:-1] if config.arm_preview else None
                     ee_cmd, ee_ref = velocity_command(
-                        arm_reference,
+                        reference,
                         q_meas,
                         ee_pos,
                         t,
                         R_heading @ cmd["base_velocity"],
                         kp=config.arm_kp,
                         node_times=stage_times,
+                        yaw_rate=cmd["base_yaw_rate"],
+                        local_velocity=local_velocity,
                     )
                 else:
                     ee_cmd = cmd["ee_velocity"]
@@ -602,7 +633,8 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
                 reporter.report(t, plan.status, f"{plan.reason} ({kept})")
             if plan.findings:
                 reporter.report_findings(t, plan.findings)
-            delay = _delay_steps(config, plan.solve_time)
+            # The plan is ready when the whole call returns (parameters, prechecks, solve, unpacking).
+            delay = _delay_steps(config, plan.timings.get("total", plan.solve_time))
             if delay == 0 or low.plan is None:  # no delay, or nothing to hold yet (the robot starts at rest)
                 low.update(plan)
                 apply_step = step
@@ -641,6 +673,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             log.foot_forces.append(plant.contact_forces() if pybullet else plant.last_contact_forces)
             log.foot_height.append(plant.foot_positions[:, 2] - robot.foot_radius)
             log.base_velocity_cmd.append(cmd["base_velocity"])
+            log.base_yaw_rate_cmd.append(cmd["base_yaw_rate"])
             log.ee_force_cmd.append(cmd["ee_force"])
             if ee_id is not None:  # only the end-effector frame is needed here
                 pin.forwardKinematics(model, data, q)
@@ -671,14 +704,18 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     return ClosedLoopResult(log=log, summary=summary, fell=fell)
 
 
-def _commands(config: ClosedLoopConfig, t: float) -> dict:
-    """Commands at time ``t``: the config's constants overridden by its schedule."""
+def _commands(config: ClosedLoopConfig, t: float, gait=None) -> dict:
+    """Commands at time ``t``: the config's constants, the gait schedule's segment velocity (a stand segment
+    stands still), then the config's ``command_schedule``."""
     cmd = {
         "base_velocity": config.base_velocity,
         "base_yaw_rate": config.base_yaw_rate,
         "ee_velocity": config.ee_velocity,
         "ee_force": config.ee_force,
     }
+    segment = None if gait is None else gait.velocity_at(t)
+    if segment is not None:
+        cmd |= {"base_velocity": (segment[0], segment[1], 0.0), "base_yaw_rate": segment[2]}
     if config.command_schedule is not None:
         override = config.command_schedule(t) or {}
         unknown = set(override) - set(cmd)
@@ -693,7 +730,8 @@ def _commands(config: ClosedLoopConfig, t: float) -> dict:
 
 
 def _delay_steps(config: ClosedLoopConfig, solve_time: float) -> int:
-    """Plant steps between a solve's measurement and its plan reaching the low level."""
+    """Plant steps between a solve's measurement and its plan reaching the low level (``solve_time``: the
+    whole :meth:`~wbmpc.control.mpc.WholeBodyMPC.solve` call [s], for ``delay="measured"``)."""
     if config.delay == "off":
         return 0
     seconds = solve_time if config.delay == "measured" else float(config.delay)
@@ -874,7 +912,59 @@ def summarize(
             "0.1 mm below the ground"
         )
     summary |= _contact_summary(mpc, arrays)
+    summary["tracking"] = command_tracking(arrays)
     return summary
+
+
+def base_velocity_heading(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Base velocity (T, 3) in the heading frame: forward [m/s], left [m/s], yaw rate [rad/s], from
+    configurations (T, nq) and velocities (T, nv) (base-frame twist, Pinocchio's free-flyer convention)."""
+    q, v = np.atleast_2d(q), np.atleast_2d(v)
+    out = np.empty((len(q), 3))
+    for k, (qk, vk) in enumerate(zip(q, v, strict=True)):
+        R = pin.Quaternion(qk[3:7]).normalized().toRotationMatrix()
+        linear, angular = R @ vk[0:3], R @ vk[3:6]
+        yaw = np.arctan2(R[1, 0], R[0, 0])
+        c, s = np.cos(yaw), np.sin(yaw)
+        out[k] = (c * linear[0] + s * linear[1], -s * linear[0] + c * linear[1], angular[2])
+    return out
+
+
+def command_tracking(arrays: Mapping[str, np.ndarray], settle: float = 1.0) -> list[dict]:
+    """Commanded against achieved base velocity over each stretch of constant command.
+
+    Args:
+        arrays: The run's columns (``t``, ``q``, ``v``, ``base_velocity_cmd``, ``base_yaw_rate_cmd``).
+        settle: Time [s] after each change of command left out of the averages.
+
+    Returns:
+        One dict per stretch: ``t_start``, ``t_end`` [s] (the averaged window), ``commanded`` and
+        ``achieved`` ``[forward m/s, left m/s, yaw rate rad/s]`` (heading frame, signed, true state), and
+        ``ratio`` (achieved / commanded per component, ``None`` where the command is 0).
+    """
+    t = np.asarray(arrays["t"], float)
+    if t.size < 2 or not len(arrays.get("base_velocity_cmd", ())):
+        return []
+    linear = np.asarray(arrays["base_velocity_cmd"], float)[:, :2]
+    cmd = np.column_stack([linear, np.asarray(arrays["base_yaw_rate_cmd"], float)])
+    achieved = base_velocity_heading(arrays["q"], arrays["v"])
+    change = np.flatnonzero(np.any(np.abs(np.diff(cmd, axis=0)) > 1e-12, axis=1)) + 1
+    out = []
+    for start, end in zip(np.r_[0, change], np.r_[change, t.size], strict=True):
+        window = t[start:end] >= t[start] + settle
+        if window.sum() < 2:
+            continue
+        c, a = cmd[start], achieved[start:end][window].mean(axis=0)
+        out.append(
+            {
+                "t_start": float(t[start:end][window][0]),
+                "t_end": float(t[start:end][window][-1]),
+                "commanded": c.tolist(),
+                "achieved": a.tolist(),
+                "ratio": [float(ai / ci) if abs(ci) > 1e-9 else None for ai, ci in zip(a, c, strict=True)],
+            }
+        )
+    return out
 
 
 def _contact_summary(mpc: WholeBodyMPC, arrays: dict) -> dict:

@@ -29,7 +29,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--gait",
         default="trot",
         help="trot, walk, stand, pace, bound (default trot), or a schedule of gaits and durations [s] "
-        "such as stand:2,trot:6,stand:2 (the last gait goes on to the end of the run)",
+        "such as stand:2,trot:6,stand:2 (the last gait goes on to the end of the run); a segment may name "
+        "its base velocity, trot@0.5:4 (forward m/s), trot@0.3/0.1/0.2:4 (forward, left m/s, yaw rad/s); "
+        "stand segments stand still, the others take --speed",
     )
     parser.add_argument("--period", type=float, default=0.8, help="gait period [s] (default 0.8)")
     parser.add_argument("--speed", type=float, default=0.2, help="forward base velocity [m/s] (default 0.2)")
@@ -91,12 +93,33 @@ def print_summary(summary: dict) -> None:
             f"{100 * summary['ee_rms_m']:.2f} cm" if summary["ee_rms_m"] is not None else "-",
         ),
         ("max roll/pitch tilt", f"{summary['max_tilt_rad']:.3f} rad"),
+        ("distance travelled", f"{summary['distance_travelled_m']:.2f} m"),
+        *_tracking_rows(summary.get("tracking", [])),
+        (
+            "contact violations",
+            ", ".join(f"{k} {v}" for k, v in summary.get("contact_violations", {}).items()) or "-",
+        ),
         ("torque-limit violations", str(summary["torque_violations"])),
         ("fell", str(summary["fell"])),
     ]
     width = max(len(r[0]) for r in rows)
     for name, value in rows:
         print(f"  {name:<{width}}  {value}")
+
+
+def _tracking_rows(tracking: list[dict]) -> list[tuple[str, str]]:
+    """One row per stretch of constant base command: commanded -> achieved (forward, left, yaw rate)."""
+    rows = []
+    for seg in tracking:
+        cmd, got = seg["commanded"], seg["achieved"]
+        rows.append(
+            (
+                f"tracking {seg['t_start']:.1f}-{seg['t_end']:.1f} s",
+                f"forward {cmd[0]:+.2f} -> {got[0]:+.2f} m/s, left {cmd[1]:+.2f} -> {got[1]:+.2f} m/s, "
+                f"yaw {cmd[2]:+.2f} -> {got[2]:+.2f} rad/s",
+            )
+        )
+    return rows
 
 
 def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

@@ -47,7 +47,6 @@ __all__ = [
     "record_emulated_run",
     "shift_base_com",
     "solve_time_jitter",
-    "stand_then_trot",
     "standing_mask",
     "write_robot_bag",
 ]
@@ -640,16 +639,6 @@ def lean(
 
 
 # ------------------------------------------------------------------------------------------- recording
-def stand_then_trot(t_stand: float, speed: float = 0.2):
-    """Command schedule (``ClosedLoopConfig.command_schedule``): still until ``t_stand`` [s], then ``speed``
-    [m/s] forward."""
-
-    def commands(t: float) -> dict:
-        return {"base_velocity": (0.0 if t < t_stand else speed, 0.0, 0.0)}
-
-    return commands
-
-
 def record_emulated_run(
     stand: float = 2.0,
     trot: float = 10.0,
@@ -661,21 +650,28 @@ def record_emulated_run(
     mpc_robot=None,
     front_force_ratio: float | None = None,
     progress: bool = False,
+    gait: str | None = None,
     **overrides,
 ):
     """A run of the MPC on the emulated robot (:func:`wbmpc.sim.hardware.hardware_config`): stand, then trot.
 
+    The computation delay is the measured one (each whole solve call's wall time on this machine) unless
+    ``delay`` is overridden; the arm holds still in the heading frame (``arm_reference=None`` with
+    ``ee_velocity_frame="heading"``).
+
     Args:
-        stand, trot: Durations [s] of the standing and trotting segments (gait schedule ``stand:S,trot:T``).
-        speed: Forward speed command of the trot [m/s] (0 while standing).
+        stand, trot: Durations [s] of the standing and trotting segments (gait schedule
+            ``stand:S,trot@speed:T``); ignored with ``gait``.
+        speed: Forward speed command of the trot [m/s] (the stand segment stands still).
         nodes: MPC nodes; compiled: compiled Fatrop (cached) or in-process.
         profile: The emulated robot (:class:`~wbmpc.sim.hardware.HardwareProfile`; default: its defaults).
         robot: The robot (default :func:`~wbmpc.model.robot.load_b1_z1`); mpc_robot: the model the MPC uses
-            (default: ``robot``; e.g. :func:`shift_base_com` of it).
+            (default: ``robot``; e.g. :func:`shift_base_com` of it, or a calibrated one).
         front_force_ratio: Front share of the MPC's force targets (``None``: the MPC robot's).
         progress: Progress bar.
-        **overrides: :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig` fields (``delay``, ``kp``, ...); the
-            arm holds still by default (``arm_reference=None``).
+        gait: A gait schedule instead (:func:`wbmpc.ocp.gait.parse_gait_schedule`, e.g.
+            ``"stand:2,trot@0.2:10,trot@0.5:5"``); the run lasts its duration.
+        **overrides: :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig` fields (``delay``, ``kp``, ...).
 
     Returns:
         ``(result, mpc)``: the :class:`~wbmpc.sim.closed_loop.ClosedLoopResult` and the MPC.
@@ -688,12 +684,14 @@ def record_emulated_run(
     from wbmpc.sim.hardware import hardware_config
 
     robot = robot or load_b1_z1()
-    spec = f"stand:{stand:g},trot:{trot:g}" if trot > 0 else "stand"
-    config = MPCConfig(gait=parse_gait_schedule(spec), compiled=compiled, front_force_ratio=front_force_ratio)
+    spec = gait or (f"stand:{stand:g},trot@{speed:g}:{trot:g}" if trot > 0 else "stand")
+    schedule = parse_gait_schedule(spec)
+    duration = schedule.duration if gait else stand + trot
+    config = MPCConfig(gait=schedule, compiled=compiled, front_force_ratio=front_force_ratio)
     mpc = WholeBodyMPC(mpc_robot or robot, OCPSettings(n_nodes=nodes), config)
     mpc.verbose = False
-    options = {"arm_reference": None, "command_schedule": stand_then_trot(stand, speed)} | overrides
-    run = hardware_config(profile, duration=stand + trot, **options)
+    options = {"arm_reference": None, "ee_velocity_frame": "heading"} | overrides
+    run = hardware_config(profile, duration=duration, **options)
     return run_closed_loop(mpc, run, progress=progress), mpc
 
 

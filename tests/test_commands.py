@@ -1,0 +1,232 @@
+"""Commands that mean what a user means: velocities that belong to a gait schedule's segments, "hold the
+arm still" in the heading frame (a world-fixed hand with a walking base flagged before planning), the yaw
+rate carried to the hand, signed command tracking, and the measured delay of the whole solve call."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wbmpc.control.arm_task import ArmReference, velocity_command
+from wbmpc.control.diagnostics import arm_reach, ee_world_hold
+from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1_z1
+from wbmpc.ocp import OCPSettings
+from wbmpc.ocp.gait import GaitSchedule, make_gait, parse_gait_schedule
+from wbmpc.sim.closed_loop import (
+    ClosedLoopConfig,
+    _commands,
+    _delay_steps,
+    base_velocity_heading,
+    command_tracking,
+    run_closed_loop,
+)
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_b1_z1()
+
+
+@pytest.fixture(scope="module")
+def mpc(robot):
+    return WholeBodyMPC(robot, OCPSettings(n_nodes=10), MPCConfig())
+
+
+# --- segment velocities -------------------------------------------------------------------------------
+def test_segment_velocities_parse_and_name_round_trip():
+    s = parse_gait_schedule("stand:1,trot@0.5:4,trot@0.3/0.1:2,trot@0/0/0.3:2,stand:1")
+    assert s.velocities == (None, (0.5, 0.0, 0.0), (0.3, 0.1, 0.0), (0.0, 0.0, 0.3), None)
+    assert s.name == "stand:1+trot@0.5:4+trot@0.3/0.1:2+trot@0/0/0.3:2+stand:1"
+    assert s.velocity_at(0.5) == (0.0, 0.0, 0.0)  # a stand segment stands still
+    assert s.velocity_at(3.0) == (0.5, 0.0, 0.0)
+    assert s.velocity_at(6.0) == (0.3, 0.1, 0.0)
+    assert s.velocity_at(8.0) == (0.0, 0.0, 0.3)
+    assert s.velocity_at(9.5) == (0.0, 0.0, 0.0)
+    plain = parse_gait_schedule("stand:1,trot:2")
+    assert plain.velocity_at(0.5) == (0.0, 0.0, 0.0) and plain.velocity_at(2.0) is None  # the run's
+    assert make_gait("stand").velocity_at(3.0) == (0.0, 0.0, 0.0)
+    assert make_gait("trot").velocity_at(3.0) is None
+
+
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("trot@fast:2", "vx[/vy[/yaw rate]]"),
+        ("trot@0.1/0.2/0.3/0.4:2", "vx[/vy[/yaw rate]]"),
+        ("trot@nan:2", "finite"),
+        ("stand:1,trot@:2", "vx[/vy[/yaw rate]]"),
+    ],
+)
+def test_bad_segment_velocity_is_named(spec, words):
+    with pytest.raises(ValueError, match="velocity after '@'") as err:
+        parse_gait_schedule(spec)
+    assert words in str(err.value)
+
+
+def test_bad_segment_velocity_tuple_is_named():
+    with pytest.raises(ValueError, match="segment 0 velocity must be 3 finite numbers"):
+        GaitSchedule([(make_gait("trot"), 1.0, (0.1, 0.2))])
+
+
+def test_a_change_of_speed_continues_the_trot_cycle():
+    """trot@0.2 from 1 s, trot@0.5 from 2.4 s: after the switch the contacts are the unbroken trot's, by
+    tick arithmetic (0.5 ms ticks; the trot begins at tick 2000, its period is 1600 ticks, FL+RR swing over
+    the first 800 of each cycle, FR+RL over the next 800). A cycle restarted at the switch (tick 4800) would
+    lift FL+RR there, right after they landed at tick 4400."""
+    s = parse_gait_schedule("stand:1,trot@0.2:1.4,trot@0.5:3")
+    assert list(s.start_ticks) == [0, 2000, 4800]
+    table = {  # tick -> swinging pair, (tick - 2000) mod 1600 by hand
+        4399: "FL+RR",  # 799
+        4400: "FR+RL",  # 800
+        4799: "FR+RL",  # 1199
+        4800: "FR+RL",  # 1200
+        4801: "FR+RL",  # 1201
+        5199: "FR+RL",  # 1599
+        5200: "FL+RR",  # 0
+        5999: "FL+RR",  # 799
+        6000: "FR+RL",  # 800
+    }
+    ticks = np.array(list(table))
+    contact = s.sample(ticks * s.tick).contact
+    for k, tick in enumerate(ticks):
+        expected = np.ones(4, bool)
+        expected[[0, 3] if table[tick] == "FL+RR" else [1, 2]] = False
+        np.testing.assert_array_equal(contact[:, k], expected, err_msg=f"tick {tick}")
+
+
+def test_commands_come_from_the_segment_then_the_callable():
+    schedule = parse_gait_schedule("stand:1,trot:2,trot@-0.1/0/0.2:2")
+    config = ClosedLoopConfig(base_velocity=(0.3, 0.0, 0.0), base_yaw_rate=0.1)
+    stand, walk, told = (_commands(config, t, schedule) for t in (0.5, 2.0, 4.0))
+    np.testing.assert_array_equal(stand["base_velocity"], 0.0)
+    assert stand["base_yaw_rate"] == 0.0
+    np.testing.assert_array_equal(walk["base_velocity"], [0.3, 0.0, 0.0])
+    assert walk["base_yaw_rate"] == 0.1
+    np.testing.assert_array_equal(told["base_velocity"], [-0.1, 0.0, 0.0])
+    assert told["base_yaw_rate"] == 0.2
+    config.command_schedule = lambda t: {"base_velocity": (0.05, 0.0, 0.0)}
+    np.testing.assert_array_equal(_commands(config, 0.5, schedule)["base_velocity"], [0.05, 0.0, 0.0])
+
+
+# --- the arm held still -------------------------------------------------------------------------------
+def test_world_fixed_hand_with_walking_base_says_when_the_reach_runs_out(robot):
+    q = robot.q_nominal
+    walk = Commands(base_linear_velocity=np.array([0.2, 0.0, 0.0]))
+    (finding,) = ee_world_hold(robot, q, walk.validated())
+    assert finding.code == "ee_world_hold_with_walking_base" and finding.severity == "warning"
+    t_out = finding.data["time_to_reach_limit_s"]
+    assert 0.0 < t_out < 10.0 and "heading" in finding.message
+    # By another route: move the base (and so the shoulder) t_out * 0.2 m forward with the hand pinned in
+    # the world; the hand is then exactly the arm's reach from its first joint.
+    model, data = robot.model, robot.model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    hand = data.oMf[robot.frame_id(robot.ee_frame)].translation.copy()
+    moved = q.copy()
+    moved[0] += 0.2 * t_out
+    pin.framesForwardKinematics(model, data, moved)
+    shoulder = data.oMi[model.getJointId(robot.arm_joint_names[0])].translation
+    assert abs(np.linalg.norm(hand - shoulder) - arm_reach(robot)["reach"]) < 1e-9
+    assert finding.data["distance_m"] == pytest.approx(0.2 * t_out)
+
+
+def test_hand_moving_with_the_base_or_standing_is_not_flagged(robot):
+    q = robot.q_nominal
+    along = Commands(base_linear_velocity=np.array([0.2, 0.0, 0.0]), ee_velocity=np.array([0.2, 0.0, 0.0]))
+    assert ee_world_hold(robot, q, along.validated()) == []
+    assert ee_world_hold(robot, q, Commands().validated()) == []
+    per_stage = Commands(base_linear_velocity=np.array([0.2, 0.0, 0.0]), ee_velocity=np.zeros((3, 9)))
+    assert ee_world_hold(robot, q, per_stage.validated()) == []
+
+
+def test_the_heading_frame_carries_the_hand_when_the_base_turns(robot):
+    """A hold point fixed in the heading frame, the hand on it: the command is the heading frame's own
+    velocity at the hand, checked against a finite difference of the hold point's world position while the
+    base moves at v and turns at omega."""
+    model, data = robot.model, robot.model.createData()
+    q = robot.q_nominal
+    pin.framesForwardKinematics(model, data, q)
+    hand = data.oMf[robot.frame_id(robot.ee_frame)].translation.copy()
+    hold = ArmReference.still().centered_at(q, hand)
+    v_base, omega, h = np.array([0.2, -0.1, 0.0]), 0.3, 1e-6
+    command, _ = velocity_command(hold, q, hand, 0.0, v_base, yaw_rate=omega)
+
+    def world_point(dt):
+        moved = q.copy()
+        moved[:3] += v_base * dt
+        rotation = pin.Quaternion(q[3:7]).toRotationMatrix() @ pin.rpy.rpyToMatrix(0, 0, omega * dt)
+        moved[3:7] = pin.Quaternion(rotation).coeffs()
+        from wbmpc.control.arm_task import world_reference
+
+        return world_reference(hold, moved, 0.0)
+
+    np.testing.assert_allclose(command, (world_point(h) - world_point(-h)) / (2 * h), atol=1e-6)
+
+
+def test_hold_still_means_still_relative_to_the_walking_body(mpc, robot):
+    """arm_reference=None: the hand keeps its place in the heading frame while the robot trots forward, and
+    no world-hold finding is raised; the world frame is an explicit choice, and is flagged."""
+    config = ClosedLoopConfig(duration=1.5, arm_reference=None, base_velocity=(0.2, 0.0, 0.0))
+    result = run_closed_loop(mpc, config, progress=False)
+    a = result.log.arrays()
+    assert not result.fell
+    hand, q = a["ee_position"], a["q"]
+    moved = q[-1, 0] - q[0, 0]
+    assert moved > 0.1  # it walks forward
+    assert abs((hand[-1, 0] - hand[0, 0]) - moved) < 0.03  # and the hand with it
+    assert result.summary["ee_max_error_m"] < 0.03
+    assert "ee_world_hold_with_walking_base" not in result.summary["diagnostics"]["findings"]
+    world = ClosedLoopConfig(duration=0.1, arm_reference=None, ee_velocity_frame="world")
+    flagged = run_closed_loop(mpc, world, progress=False).summary["diagnostics"]["findings"]
+    assert flagged.get("ee_world_hold_with_walking_base", 0) >= 1
+
+
+def test_stand_segment_stands_still_and_the_delay_is_the_whole_call(mpc, robot):
+    """stand:0.5 then trot with the run's 0.2 m/s: the base does not drift while standing (it drifted 27 cm
+    over a 2 s stand when the stand segment was commanded the walking speed). With ``delay="measured"`` the
+    plan reaches the low level after the whole solve call (here made 12 ms), not the solver's share."""
+    schedule = parse_gait_schedule("stand:0.5,trot:1")
+    config = ClosedLoopConfig(duration=1.5, gait=schedule, arm_reference=None, delay="measured", kd=5.0)
+    solve = mpc.solve
+
+    def slow_call(*args, **kwargs):
+        plan = solve(*args, **kwargs)
+        plan.timings = {**plan.timings, "total": 0.012}
+        plan.solve_time = 0.001
+        return plan
+
+    mpc.solve = slow_call
+    try:
+        result = run_closed_loop(mpc, config, progress=False)
+    finally:
+        del mpc.solve
+    a = result.log.arrays()
+    standing = a["t"] < 0.5
+    assert np.max(np.abs(a["q"][standing, 0] - a["q"][0, 0])) < 0.01
+    assert a["q"][-1, 0] - a["q"][0, 0] > 0.05
+    assert result.summary["converged_fraction"] == 1.0
+    lag = (a["apply_t"] - a["solve_t"])[1:]  # the first plan applies at once (nothing to hold before it)
+    np.testing.assert_allclose(lag, 0.012, atol=1e-9)
+    assert _delay_steps(ClosedLoopConfig(delay="measured"), 0.0126) == 26  # rounded up to plant steps
+
+
+# --- tracking --------------------------------------------------------------------------------------------
+def test_command_tracking_is_signed_and_per_stretch(robot):
+    """A synthetic log: 1 s at +0.2 m/s forward then 2 s at -0.1 m/s with a -0.3 rad/s yaw rate, the base
+    heading 90 degrees left (forward is world +y): the stretches' achieved values keep their signs."""
+    t = np.arange(0, 3.0, 0.002)
+    q = np.tile(robot.q_nominal, (t.size, 1))
+    q[:, 3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0, 0, np.pi / 2)).coeffs()
+    v = np.zeros((t.size, robot.nv))
+    first = t < 1.0
+    forward = np.where(first, 0.2, -0.1)
+    v[:, 0] = forward  # base frame x is the heading's forward
+    v[:, 5] = np.where(first, 0.0, -0.3)
+    cmd = np.zeros((t.size, 3))
+    cmd[:, 0] = forward
+    arrays = {"t": t, "q": q, "v": v, "base_velocity_cmd": cmd, "base_yaw_rate_cmd": v[:, 5]}
+    np.testing.assert_allclose(base_velocity_heading(q[:1], v[:1])[0], [0.2, 0.0, 0.0], atol=1e-12)
+    first_stretch, second = command_tracking(arrays, settle=0.2)
+    assert first_stretch["t_start"] == pytest.approx(0.2)
+    np.testing.assert_allclose(first_stretch["achieved"], [0.2, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(second["achieved"], [-0.1, 0.0, -0.3], atol=1e-12)
+    assert second["ratio"][0] == pytest.approx(1.0) and second["ratio"][1] is None
