@@ -25,11 +25,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, distribution
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
 
 from wbmpc import checks
+
+if TYPE_CHECKING:
+    from wbmpc.model.calibration import Calibration
 
 FOOT_NAMES = ("FL", "FR", "RL", "RR")
 UNITREE_FOOT_FRAMES = tuple(f"{name}_foot" for name in FOOT_NAMES)
@@ -84,6 +88,8 @@ class Robot:
         locked_joints: Joint names removed from the model, with the angle [rad] each is locked at.
         foot_radius: Radius [m] of the foot collision spheres; foot frames sit this far above the ground.
         front_force_ratio: Share of the weight carried by the front feet in the nominal force split.
+        calibration: The calibration applied to the model (:mod:`wbmpc.model.calibration`), ``None``: the
+            nominal description. Its joint friction is for the low level (``calibration.joint_friction``).
     """
 
     name: str
@@ -96,6 +102,7 @@ class Robot:
     locked_joints: dict[str, float] = field(default_factory=dict)
     foot_radius: float = 0.0
     front_force_ratio: float = 0.5
+    calibration: Calibration | None = None
 
     # --- sizes -------------------------------------------------------------------------------------------
     @property
@@ -205,11 +212,15 @@ class Robot:
 
 
 # --- loaders ---------------------------------------------------------------------------------------------
-def load_b1_z1(reference_pose: str = "standing_with_arm_up") -> Robot:
+def load_b1_z1(
+    reference_pose: str = "standing_with_arm_up", calibration: str | Path | Calibration | None = None
+) -> Robot:
     """The default robot: Unitree B1 with the Z1 arm, joint5, joint6 and the gripper locked (22 DoF).
 
     The locked joints are held at their values in ``reference_pose``. The end effector is a frame
     ``gripper_center`` placed 5 cm ahead of the gripper hinge (the tool centre point between the jaws).
+    ``calibration``: a calibration file or :class:`~wbmpc.model.calibration.Calibration` to apply (see
+    :func:`load_robot`).
     """
     robots = example_robot_data_dir()
     return load_robot(
@@ -222,11 +233,12 @@ def load_b1_z1(reference_pose: str = "standing_with_arm_up") -> Robot:
         extra_frames={B1_Z1_EE_FRAME: ("gripperMover", (0.05, 0.0, 0.0))},
         extra_poses=B1_Z1_EXTRA_ARM_POSES,
         name="Unitree B1 + Z1",
+        calibration=calibration,
     )
 
 
-def load_b1(reference_pose: str = "standing") -> Robot:
-    """Unitree B1 without an arm (18 DoF)."""
+def load_b1(reference_pose: str = "standing", calibration: str | Path | Calibration | None = None) -> Robot:
+    """Unitree B1 without an arm (18 DoF); ``calibration`` as in :func:`load_robot`."""
     robots = example_robot_data_dir()
     return load_robot(
         robots / "b1_description/urdf/b1.urdf",
@@ -235,6 +247,7 @@ def load_b1(reference_pose: str = "standing") -> Robot:
         ee_frame=None,
         reference_pose=reference_pose,
         name="Unitree B1",
+        calibration=calibration,
     )
 
 
@@ -262,6 +275,7 @@ def load_robot(
     foot_radius: float | None = None,
     front_force_ratio: float = 0.5,
     name: str | None = None,
+    calibration: str | Path | Calibration | None = None,
 ) -> Robot:
     """Build a :class:`Robot` from any URDF (and optional SRDF) with a free-flyer base.
 
@@ -281,6 +295,11 @@ def load_robot(
         foot_radius: Foot sphere radius [m]; read from the URDF foot collision spheres when ``None``.
         front_force_ratio: Share of the weight on the front feet in the nominal force split, in (0, 1).
         name: Display name; the URDF file stem by default.
+        calibration: A calibration file (``.yaml``, ``.yml``, ``.json``) or
+            :class:`~wbmpc.model.calibration.Calibration` to apply (:meth:`~wbmpc.model.calibration.
+            Calibration.apply`): the base CoM moved, its front force ratio (replacing
+            ``front_force_ratio``), the armature in ``model.armature``; the robot's ``calibration``
+            attribute keeps it (its friction is for the low level). Read and checked before the URDF.
 
     Returns:
         The robot, with every reference pose shifted vertically so the lowest foot contact point is at z = 0.
@@ -289,6 +308,8 @@ def load_robot(
     Raises:
         RobotModelError: missing file, unknown joint/frame/pose, an inconsistent description, or a link
             whose mass or inertia PyBullet would not simulate as written (all such links are listed).
+        FileNotFoundError: if ``calibration`` names no file.
+        CalibrationError: for a calibration file with a bad field, or joints the robot does not have.
 
     Mass and inertia checks (PyBullet loads every URDF link as a body of its own, so the plant only matches
     the MPC model if each link's ``<inertial>`` is used as written):
@@ -308,6 +329,7 @@ def load_robot(
     for label, path in (("urdf", urdf), ("srdf", srdf)):
         if path is not None and not isinstance(path, str | Path):
             raise RobotModelError(f"{label} must be a file path (str or Path), got {path!r}")
+    calibration = _read_calibration(calibration)
     urdf = Path(urdf)
     if not urdf.is_file():
         raise RobotModelError(f"URDF file not found: {urdf}")
@@ -405,7 +427,7 @@ def load_robot(
         )
         poses[pose_name] = place_feet_on_ground(model, q, foot_frames, radius)
 
-    return Robot(
+    robot = Robot(
         name=name or urdf.stem,
         model=model,
         urdf_path=urdf,
@@ -417,6 +439,18 @@ def load_robot(
         foot_radius=radius,
         front_force_ratio=front_force_ratio,
     )
+    return robot if calibration is None else calibration.apply(robot)
+
+
+def _read_calibration(calibration) -> Calibration | None:
+    """A :class:`~wbmpc.model.calibration.Calibration` from a path or an instance (``None`` passes)."""
+    from wbmpc.model.calibration import Calibration
+
+    if calibration is None or isinstance(calibration, Calibration):
+        return calibration
+    if not isinstance(calibration, str | Path):
+        raise RobotModelError(f"calibration must be a file path or a Calibration, got {calibration!r}")
+    return Calibration.load(calibration)
 
 
 def place_feet_on_ground(

@@ -118,10 +118,12 @@ def _run(robot, nodes, mpc_config, loop: ClosedLoopConfig, progress: bool, q0=No
 
 
 def _base_loop(**kwargs) -> ClosedLoopConfig:
-    """PyBullet at 2 kHz, MPC 80 Hz, low level 500 Hz; no arm reference unless given."""
+    """PyBullet at 2 kHz, MPC 80 Hz, low level 500 Hz; no arm reference unless given: the experiments
+    command the hand's world velocity (pulling, pushing, wiping), the paper's command."""
     defaults = {
         "plant": "pybullet",
         "arm_reference": None,
+        "ee_velocity_frame": "world",
         "base_velocity": (0.0, 0.0, 0.0),
     }
     return ClosedLoopConfig(**(defaults | kwargs))
