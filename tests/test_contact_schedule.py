@@ -4,11 +4,11 @@ no failed plan reaches the low level (the static hold)."""
 import numpy as np
 import pytest
 
-from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCPSettings
-from wbmpc.ocp.gait import GaitSchedule, make_gait, parse_gait_schedule, to_ticks
+from wbmpc.ocp.gait import SCHEDULE_TICK, GaitSchedule, make_gait, parse_gait_schedule, to_ticks
 from wbmpc.quick import pick
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
@@ -42,6 +42,87 @@ def test_every_trot_switch_is_one_exact_tick_of_the_plant():
     np.testing.assert_allclose(ticks[switches], 0.4 * np.arange(1, 25), atol=1e-12)
 
 
+# Contacts (FL, FR, RL, RR; 1 = stance) worked out by hand in ticks of 0.5 ms. Trot, period 0.8 s = 1600
+# ticks, swing 800 ticks: FL + RR swing on [0, 800) of each cycle, FR + RL on [800, 1600). Ticks 2400,
+# 4800, 9600 and 19200 (1.2, 2.4, 4.8 and 9.6 s) are where the floating-point phase put a switch on the
+# wrong side.
+STANCE_A, STANCE_B, ALL = (0, 1, 1, 0), (1, 0, 0, 1), (1, 1, 1, 1)  # A: FR + RL stand; B: FL + RR stand
+TROT_TABLE = [
+    (0, STANCE_A),
+    (1, STANCE_A),
+    (399, STANCE_A),
+    (400, STANCE_A),
+    (799, STANCE_A),
+    (800, STANCE_B),
+    (801, STANCE_B),
+    (1599, STANCE_B),
+    (1600, STANCE_A),
+    (2399, STANCE_A),
+    (2400, STANCE_B),
+    (2401, STANCE_B),
+    (4799, STANCE_B),
+    (4800, STANCE_A),
+    (9599, STANCE_B),
+    (9600, STANCE_A),
+    (19199, STANCE_B),
+    (19200, STANCE_A),
+    (20000, STANCE_B),
+]
+# Swing phases (elapsed fraction of the 800-tick swing) of the swinging feet at some of those ticks.
+TROT_PHASES = [(0, 0.0), (1, 1 / 800), (400, 0.5), (799, 799 / 800), (800, 0.0), (1200, 0.5), (2400, 0.0)]
+# stand:2,trot:6,stand:2: the trot runs on ticks [4000, 16000) with its cycle starting at 4000 (no swing is
+# in the air at 16000, so no extension), then stand for good.
+SCHEDULE_TABLE = [
+    (0, ALL),
+    (3999, ALL),
+    (4000, STANCE_A),
+    (4799, STANCE_A),
+    (4800, STANCE_B),
+    (5599, STANCE_B),
+    (5600, STANCE_A),
+    (15999, STANCE_A),
+    (16000, ALL),
+    (40000, ALL),
+]
+
+
+def _table(rows):
+    ticks = np.array([tick for tick, _ in rows])
+    return ticks, np.array([contact for _, contact in rows], dtype=bool).T
+
+
+def test_trot_contacts_match_the_hand_computed_tick_table():
+    gait = make_gait("trot", 0.8)
+    assert SCHEDULE_TICK == PLANT_DT
+    ticks, expected = _table(TROT_TABLE)
+    np.testing.assert_array_equal(gait.sample(ticks * SCHEDULE_TICK).contact, expected)
+    np.testing.assert_array_equal(gait.sample_ticks(ticks).contact, expected)
+    for tick, contact in TROT_TABLE:
+        np.testing.assert_array_equal(gait.contact(tick * SCHEDULE_TICK), contact, err_msg=f"tick {tick}")
+    for tick, phase in TROT_PHASES:
+        sample = gait.sample(np.array([tick * SCHEDULE_TICK]))
+        swinging = ~sample.contact[:, 0]
+        assert swinging.sum() == 2, tick
+        np.testing.assert_allclose(sample.swing_phase[swinging, 0], phase, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(sample.swing_phase[~swinging, 0], 0.0)
+
+
+def test_a_stand_trot_stand_schedule_matches_the_hand_computed_tick_table(robot):
+    schedule = parse_gait_schedule("stand:2,trot:6,stand:2")
+    np.testing.assert_array_equal(schedule.start_ticks, [0, 4000, 16000])
+    assert not schedule.notes
+    ticks, expected = _table(SCHEDULE_TABLE)
+    np.testing.assert_array_equal(schedule.sample(ticks * SCHEDULE_TICK).contact, expected)
+    # The MPC's node 0 (sampled at the measurement time) follows the same table, for the trot too.
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=schedule))
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    for table in (SCHEDULE_TABLE, TROT_TABLE):
+        mpc.config.gait = schedule if table is SCHEDULE_TABLE else make_gait("trot", 0.8)
+        for tick, contact in table:
+            node0 = mpc.parameters(q, v, tick * SCHEDULE_TICK, Commands())["contact"][:, 0] > 0.5
+            np.testing.assert_array_equal(node0, contact, err_msg=f"tick {tick}")
+
+
 def test_tick_arithmetic_is_exact_over_long_runs():
     gait = make_gait("trot", 0.8)
     t = np.arange(0, 3600.0, 0.4)  # an hour of switches
@@ -57,8 +138,6 @@ def test_mpc_node0_contacts_equal_the_plants_on_every_tick(robot):
     contacts at every MPC tick of a 10 s trot and of a stand-trot-stand schedule."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("trot")))
     q, v = robot.q_nominal, np.zeros(robot.nv)
-    from wbmpc.control.mpc import Commands
-
     for gait in (make_gait("trot"), parse_gait_schedule("stand:2,trot:6,stand:2")):
         mpc.config.gait = gait
         for t in mpc_ticks(10.0):
@@ -105,6 +184,20 @@ def test_a_period_off_the_tick_grid_is_refused():
         GaitSchedule([("trot", 1.0)])
 
 
+def _forward_progress(q, minimum):
+    """Signed displacement [m] of the base along its initial heading, and across it; asserts the robot went
+    at least ``minimum`` forward and less than a third of that sideways."""
+    import pinocchio as pin
+
+    R0 = pin.Quaternion(q[0, 3:7]).normalized().toRotationMatrix()
+    forward = R0[:2, 0] / np.linalg.norm(R0[:2, 0])
+    left = np.array([-forward[1], forward[0]])
+    step = q[-1, :2] - q[0, :2]
+    assert step @ forward > minimum, f"forward {step @ forward:.3f} m, wanted > {minimum:.3f} m"
+    assert abs(step @ left) < minimum / 3, f"sideways {step @ left:.3f} m"
+    return step @ forward, step @ left
+
+
 def _penetration_checks(result, n_touchdowns):
     s = result.summary
     assert not result.fell
@@ -121,9 +214,24 @@ def test_trot_keeps_swing_feet_out_of_the_ground(robot):
     duration = pick(full=10.0, quick=2.5)
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("trot")))
     result = run_closed_loop(mpc, ClosedLoopConfig(duration=duration), progress=False)
+    log = result.log.arrays()
+    # The plant's contacts on every low-level step, by integer arithmetic on the tick (not by the Gait):
+    # FL + RR stand on the second half of each 1600-tick cycle, FR + RL on the first.
+    ticks = np.rint(log["t"] / PLANT_DT).astype(np.int64)
+    assert ticks.max() >= 4800  # through the switches at 1.2 and 2.4 s
+    pair_b = ticks % 1600 >= 800
+    np.testing.assert_array_equal(log["contact"], np.stack([pair_b, ~pair_b, ~pair_b, pair_b], axis=1))
+    # ... and by the feet themselves: stance feet stay on the ground, swing feet are high in mid-swing.
+    height = log["foot_height"]
+    stance = log["contact"].astype(bool)
+    assert np.abs(height[stance]).max() < 0.003, np.abs(height[stance]).max()
+    mid_swing = ~stance & (np.abs(ticks % 800 - 400) < 80)[:, None]  # 40 ms either side of the apex
+    assert mid_swing.sum() > 100 and height[mid_swing].min() > 0.03, height[mid_swing].min()
     touchdowns = 2 * int(duration / 0.4)
     _penetration_checks(result, touchdowns)
     assert result.summary["iterations_max"] <= 10
+    # It walked forward along its heading (0.2 m/s commanded): not backwards, not sideways.
+    _forward_progress(log["q"], minimum=0.4 * 0.2 * duration)
 
 
 def test_stand_trot_stand_transitions_on_mpc_ticks(robot):
