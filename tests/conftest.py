@@ -42,3 +42,24 @@ def fake_plan(robot, t0=0.0, ee_force_z=0.0):
         iterations=6,
         solve_time=0.17,
     )
+
+
+def forward_progress(q, minimum):
+    """Signed displacement [m] of the base along its initial heading and to its left, from logged
+    configurations (T, nq). Asserts at least ``minimum`` forward (a norm such as ``distance_travelled_m``
+    also passes walking backwards or sideways) and a path within 27 degrees of the heading (sideways less
+    than half of forward: short runs from rest drift a few centimetres sideways)."""
+    import numpy as np
+    import pinocchio as pin
+
+    q = np.asarray(q)
+    R0 = pin.Quaternion(q[0, 3:7]).normalized().toRotationMatrix()
+    forward = R0[:2, 0] / np.linalg.norm(R0[:2, 0])
+    left = np.array([-forward[1], forward[0]])
+    step = q[-1, :2] - q[0, :2]
+    along, across = float(step @ forward), float(step @ left)
+    assert along > minimum, (
+        f"forward {along:.3f} m, wanted more than {minimum:.3f} m (sideways {across:.3f} m)"
+    )
+    assert abs(across) < along / 2, f"sideways {across:.3f} m for {along:.3f} m forward"
+    return along, across

@@ -3,6 +3,7 @@ no failed plan reaches the low level (the static hold)."""
 
 import numpy as np
 import pytest
+from conftest import forward_progress
 
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
@@ -184,20 +185,6 @@ def test_a_period_off_the_tick_grid_is_refused():
         GaitSchedule([("trot", 1.0)])
 
 
-def _forward_progress(q, minimum):
-    """Signed displacement [m] of the base along its initial heading, and across it; asserts the robot went
-    at least ``minimum`` forward and less than a third of that sideways."""
-    import pinocchio as pin
-
-    R0 = pin.Quaternion(q[0, 3:7]).normalized().toRotationMatrix()
-    forward = R0[:2, 0] / np.linalg.norm(R0[:2, 0])
-    left = np.array([-forward[1], forward[0]])
-    step = q[-1, :2] - q[0, :2]
-    assert step @ forward > minimum, f"forward {step @ forward:.3f} m, wanted > {minimum:.3f} m"
-    assert abs(step @ left) < minimum / 3, f"sideways {step @ left:.3f} m"
-    return step @ forward, step @ left
-
-
 def _penetration_checks(result, n_touchdowns):
     s = result.summary
     assert not result.fell
@@ -231,7 +218,7 @@ def test_trot_keeps_swing_feet_out_of_the_ground(robot):
     _penetration_checks(result, touchdowns)
     assert result.summary["iterations_max"] <= 10
     # It walked forward along its heading (0.2 m/s commanded): not backwards, not sideways.
-    _forward_progress(log["q"], minimum=0.4 * 0.2 * duration)
+    forward_progress(log["q"], minimum=0.4 * 0.2 * duration)
 
 
 def test_stand_trot_stand_transitions_on_mpc_ticks(robot):
@@ -242,6 +229,9 @@ def test_stand_trot_stand_transitions_on_mpc_ticks(robot):
     loop = ClosedLoopConfig(duration=schedule.duration, gait=schedule, base_velocity=(0.1, 0.0, 0.0))
     result = run_closed_loop(mpc, loop, keep_plans=True, progress=False)
     _penetration_checks(result, 2 * round((schedule.start_times[2] - schedule.start_times[1]) / 0.4))
+    # Forward, as commanded (0.1 m/s while trotting), not backwards or sideways.
+    trotting = schedule.start_times[2] - schedule.start_times[1]
+    forward_progress(result.log.arrays()["q"], minimum=0.4 * 0.1 * trotting)
     assert mpc.config.gait.name == "stand"  # the run's schedule replaced the MPC's only for the run
     # The plan computed one tick before the trot starts already lifts FL + RR from its second stage on.
     t_switch = schedule.start_times[1]

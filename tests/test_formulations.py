@@ -4,6 +4,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import forward_progress
 
 from wbmpc import codegen, cpin
 from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
@@ -186,3 +187,4 @@ def test_short_trot_in_closed_loop_stays_upright(robot, name):
     assert not result.fell
     assert result.summary["max_tilt_rad"] < 0.1
     assert result.summary["converged_fraction"] >= 0.9
+    forward_progress(result.log.arrays()["q"], minimum=0.4 * 0.1 * 0.5)  # 0.1 m/s forward commanded

@@ -4,6 +4,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import forward_progress
 
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
@@ -322,6 +323,7 @@ def test_closed_loop_trot_stays_upright(robot):
     q = result.log.arrays()["q"]
     assert q[:, 2].min() > 0.4  # base height stays near nominal (0.53 m)
     assert max(tilt(qi) for qi in q) == pytest.approx(s["max_tilt_rad"])
+    forward_progress(q, minimum=0.4 * 0.2 * 0.5)  # 0.2 m/s forward commanded (the default)
 
 
 @pytest.mark.parametrize(
@@ -360,7 +362,9 @@ def test_closed_loop_trot_on_pybullet_stays_upright(robot):
     assert s["plant"] == "pybullet"
     assert not result.fell and s["max_tilt_rad"] < 0.2
     assert s["converged_fraction"] >= 0.95
-    assert result.log.arrays()["q"][:, 2].min() > 0.4
+    q = result.log.arrays()["q"]
+    assert q[:, 2].min() > 0.4
+    forward_progress(q, minimum=0.4 * 0.2 * 0.4)  # 0.2 m/s forward commanded (the default)
 
 
 def test_unknown_plant_is_named(robot):
