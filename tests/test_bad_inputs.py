@@ -1222,19 +1222,50 @@ CLI_CASES = [
 ]
 
 
+class _WorkStartedError(Exception):
+    """Raised by the stand-in robot loader: a command line started working before refusing its input."""
+
+
 @pytest.mark.parametrize(
     "module, argv, message", CLI_CASES, ids=[f"{m} {' '.join(a)}" for m, a, _ in CLI_CASES]
 )
 def test_command_lines(module, argv, message, capsys, monkeypatch):
     main = _cli(module)
     started = []
-    monkeypatch.setattr("wbmpc.model.robot.load_b1_z1", lambda *a, **k: started.append(1))  # no work
+
+    def no_work(*args, **kwargs):
+        started.append(args)
+        raise _WorkStartedError(f"{module}: a robot was loaded before the argument check")
+
+    # Every built-in robot goes through load_robot, looked up in wbmpc.model.robot at call time (the demo's
+    # load() picks the loader from a table and the experiments import load_b1_z1 by name, so patching
+    # load_b1_z1 itself would not see them).
+    monkeypatch.setattr("wbmpc.model.robot.load_robot", no_work)
     with pytest.raises(SystemExit) as exit_info:
         main([*argv, "--quiet"])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert message in err[-1], err
     assert not started
+
+
+@pytest.mark.parametrize("module", ["demo", "bench", "table1", "experiments"])
+def test_the_no_work_guard_sees_the_robot_loader_of_each_command_line(module, monkeypatch, tmp_path):
+    """The guard above is only as good as the name it patches: with valid arguments each command line
+    does reach the patched loader (so a check moved after the work would be caught)."""
+    valid = {
+        "demo": ["--nodes", "3", "--no-replay", "--output", str(tmp_path)],
+        "bench": ["--steps", "1", "--output", str(tmp_path / "bench.json")],
+        "table1": ["--steps", "1", "--output", str(tmp_path / "table1.csv")],
+        "experiments": ["arm_tracking", "--quick", "--no-logs"],
+    }
+
+    def no_work(*args, **kwargs):
+        raise _WorkStartedError(module)
+
+    monkeypatch.setattr("wbmpc.model.robot.load_robot", no_work)
+    with pytest.raises(_WorkStartedError):
+        _cli(module)([*valid[module], "--quiet"])
 
 
 def test_realtime_baseline_variants_need_a_baseline(capsys):
