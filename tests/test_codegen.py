@@ -251,6 +251,12 @@ MODEL_CHANGES = {
         {"model.items.limits.RL_calf_joint"},
     ),
     "foot_radius": (load_b1, lambda r: setattr(r, "foot_radius", 0.05), {"foot_radius"}),
+    # A calibration's rotor inertia: RNEA, CRBA and ABA add it, so the generated code changes.
+    "armature": (
+        load_b1,
+        lambda r: r.model.armature.__setitem__(r.joint_index_v("FL_calf_joint"), 0.04),
+        {"model.items.armature.FL_calf_joint"},
+    ),
     # Rotations alone (the origins stay): the placement's rotation is part of the generated kinematics.
     "joint_rotation": (
         load_b1,

@@ -21,7 +21,14 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from wbmpc.cpin.crba import body_inertia, composite_inertias, force_to_parent, rotate_symmetric, symmetric
+from wbmpc.cpin.crba import (
+    add_armature,
+    body_inertia,
+    composite_inertias,
+    force_to_parent,
+    rotate_symmetric,
+    symmetric,
+)
 from wbmpc.cpin.kinematics import Motion, _subspace, forward_kinematics, motion_act_inv, motion_cross
 from wbmpc.cpin.model import SymbolicModel
 from wbmpc.cpin.rnea import rnea
@@ -98,6 +105,7 @@ def _aba_crba(model: SymbolicModel, q, v, tau, forces) -> ca.SX:
     data = forward_kinematics(model, q, v, zero)
     bias = rnea(model, q, v, zero, forces, data)  # b(q, v) - J_c^T F
     _, M = composite_inertias(model, data)
+    add_armature(model, M)
     parents = dof_parents(model)
     L, D = ltdl(M, parents)
     return ca.vertcat(*ltdl_solve(L, D, parents, [tau[k] - bias[k] for k in range(model.nv)]))
@@ -121,18 +129,19 @@ class _Articulated:
         return _Articulated(self.A + other.A, self.B + other.B, self.C + other.C)
 
 
-def _rank_one_downdate(Y: _Articulated, u_lin, u_ang, inv_d, info) -> _Articulated:
-    """``Y - U U^T / D`` with ``U = Y S = (u_lin, u_ang)`` and ``D = S^T U``.
+def _rank_one_downdate(Y: _Articulated, u_lin, u_ang, inv_d, info, armature: float = 0.0) -> _Articulated:
+    """``Y - U U^T / D`` with ``U = Y S = (u_lin, u_ang)`` and ``D = S^T U + armature``.
 
-    The result annihilates the joint's motion subspace (``(Y - U U^T / D) S = U - U = 0``): for an
-    axis-aligned joint the corresponding rows and columns are set to exact zeros instead of computed as
-    rounding noise, which removes their operations here and in every transform to the root.
+    Without armature the result annihilates the joint's motion subspace (``(Y - U U^T / D) S = U - U =
+    0``): for an axis-aligned joint the corresponding rows and columns are set to exact zeros instead of
+    computed as rounding noise, which removes their operations here and in every transform to the root.
+    With armature they do not vanish (``U armature / D``) and are computed.
     """
     w_lin, w_ang = u_lin * inv_d, u_ang * inv_d
     A = [[Y.A[i, j] - w_lin[i] * u_lin[j] for j in range(3)] for i in range(3)]
     B = [[Y.B[i, j] - w_lin[i] * u_ang[j] for j in range(3)] for i in range(3)]
     C = [[Y.C[i, j] - w_ang[i] * u_ang[j] for j in range(3)] for i in range(3)]
-    if info.axis is not None:
+    if info.axis is not None and armature == 0.0:
         k = info.axis
         for i in range(3):
             if info.kind == "revolute":  # S = (0, e_k): column k of B and of C vanish
@@ -201,9 +210,12 @@ def _aba_articulated(model: SymbolicModel, q, v, tau, forces) -> ca.SX:
         else:
             U[j] = (ca.mtimes(Y.A, e), ca.mtimes(Y.B.T, e))
             D, s_pA = ca.dot(e, U[j][0]), ca.dot(e, pA[j][0])
+        armature = float(model.armature[info.idx_v])
+        if armature != 0.0:
+            D = D + armature
         inv_d[j] = 1 / D
         u[j] = tau[info.idx_v] - s_pA
-        Ya = _rank_one_downdate(Y, U[j][0], U[j][1], inv_d[j], info)
+        Ya = _rank_one_downdate(Y, U[j][0], U[j][1], inv_d[j], info, armature)
         # pa = pA + Ia_a c + U u / D (Ia_a has the exact zeros of the downdate)
         Ic_lin, Ic_ang = Ya.times(c[j])
         gain = u[j] * inv_d[j]
@@ -218,14 +230,21 @@ def _aba_articulated(model: SymbolicModel, q, v, tau, forces) -> ca.SX:
     Y = Ia[1]
     block = ca.vertcat(ca.horzcat(Y.A, Y.B), ca.horzcat(Y.B.T, Y.C))
     chain = [-1, 0, 1, 2, 3, 4]
-    L, D = ltdl([[block[r, k] for k in range(6)] for r in range(6)], chain)
+    rows = [[block[r, k] for k in range(6)] for r in range(6)]
     rhs = [tau[root.idx_v + k] - (pA[1][0][k] if k < 3 else pA[1][1][k - 3]) for k in range(6)]
+    # The base acceleration excludes gravity: a_root = ddq_base + (R_b^T (-g), 0).
+    g_base = ca.mtimes(data.rotations[1].T, model.gravity)
+    for k in range(6):
+        armature = float(model.armature[root.idx_v + k])
+        if armature != 0.0:  # armature * ddq_base = armature * (a_root + g_base)
+            rows[k][k] = rows[k][k] + armature
+            if k < 3:
+                rhs[k] = rhs[k] - armature * g_base[k]
+    L, D = ltdl(rows, chain)
     a_root = ltdl_solve(L, D, chain, rhs)  # spatial acceleration of the base with gravity folded in
     acc: list = [None] * n
     acc[1] = Motion(ca.vertcat(*a_root[:3]), ca.vertcat(*a_root[3:]))
     ddq = [None] * model.nv
-    # The base acceleration excludes gravity: a_root = ddq_base + (R_b^T (-g), 0).
-    g_base = ca.mtimes(data.rotations[1].T, model.gravity)
     for k in range(6):
         ddq[root.idx_v + k] = a_root[k] + (g_base[k] if k < 3 else 0)
     for info in model.joints[2:]:
@@ -261,7 +280,7 @@ def aba(
 
     Returns:
         ``a`` (nv,) [m/s^2, rad/s^2], the base part the derivative of the base-frame twist, such that
-        ``rnea(q, v, a, forces) == tau``.
+        ``rnea(q, v, a, forces) == tau`` (the model's armature included, as in ``pinocchio.aba``).
 
     Raises:
         ValueError: for an unknown ``method`` or frame.

@@ -155,8 +155,18 @@ def crba(model: SymbolicModel, q: ca.SX, data: SymbolicData | None = None) -> ca
         data: Output of ``forward_kinematics(model, q, ...)`` to reuse its joint transforms.
 
     Returns:
-        ``M`` [kg, kg m, kg m^2]: kinetic energy ``v^T M v / 2`` with the base twist in the base frame.
+        ``M`` [kg, kg m, kg m^2]: kinetic energy ``v^T M v / 2`` with the base twist in the base frame, the
+        armature (``model.armature``) on its diagonal.
     """
     data = forward_kinematics(model, q) if data is None else data
     _, M = composite_inertias(model, data)
+    add_armature(model, M)
     return ca.vertcat(*[ca.horzcat(*row) for row in M])
+
+
+def add_armature(model: SymbolicModel, M: list[list]) -> None:
+    """Add ``model.armature`` to the diagonal of ``M`` (nested lists, in place), as ``pinocchio.crba`` does;
+    zero entries add no operation."""
+    for k, armature in enumerate(model.armature):
+        if armature != 0.0:
+            M[k][k] = M[k][k] + float(armature)

@@ -52,6 +52,10 @@ class SymbolicModel:
     Args:
         model: Numeric Pinocchio model with a free-flyer root joint.
 
+    Attributes:
+        armature: ``model.armature`` (nv,) [kg m^2 or kg]: the rotor inertia each degree of freedom adds to
+            the diagonal of the joint-space inertia matrix, as Pinocchio's RNEA, CRBA and ABA add it.
+
     Raises:
         ValueError: if the root is not a free flyer or a joint type is not supported.
     """
@@ -60,6 +64,7 @@ class SymbolicModel:
         self.model = model
         self.nq, self.nv = model.nq, model.nv
         self.gravity = clean_constant(model.gravity.linear.reshape(3, 1))
+        self.armature = np.array(model.armature, dtype=float).ravel()
         self.joints: list[JointInfo | None] = [None]
         for j in range(1, model.njoints):
             self.joints.append(self._joint_info(model, j))

@@ -2,6 +2,9 @@
 
 .. math::  \\tau = M(q) a + b(q, v) - \\sum_c J_c(q)^T F_c
 
+``M`` includes the model's armature (``model.armature``, the rotor inertia on the diagonal): like
+``pinocchio.rnea``, ``tau_i += armature_i a_i``.
+
 where each :math:`F_c` is a 3-D force [N] in world axes applied at the origin of contact frame ``c``
 (``LOCAL_WORLD_ALIGNED`` Jacobian). The first six rows are the base wrench in the base frame: they must
 vanish for a physically consistent motion of the unactuated base.
@@ -82,6 +85,9 @@ def rnea(
         parent_ang = ca.mtimes(R, f_ang[j]) + cross(p, parent_lin)
         f_lin[info.parent] = f_lin[info.parent] + parent_lin
         f_ang[info.parent] = f_ang[info.parent] + parent_ang
+    for k, armature in enumerate(model.armature):
+        if armature != 0.0:  # no operation for the zero entries: the code of a model without armature
+            tau[k] = tau[k] + float(armature) * a[k]
     return ca.vertcat(*tau)
 
 

@@ -228,11 +228,12 @@ def model_fingerprint(model: pin.Model) -> dict[str, dict[str, list]]:
 
     Components (each ``{item name: canonical values}``): ``gravity``; ``joints`` (type, axis, parent,
     indices, placement in the parent joint); ``inertias`` (mass, centre of mass, rotational inertia);
-    ``frames`` (parent joint, type, placement); ``limits`` (position, velocity and torque limits).
-    Floats are written with :data:`FINGERPRINT_DIGITS` significant digits. What the symbolic algorithms
-    never read (armature, friction, damping, geometry) is left out, so that it causes no rebuild.
+    ``frames`` (parent joint, type, placement); ``limits`` (position, velocity and torque limits);
+    ``armature`` (rotor inertia per degree of freedom, which RNEA, CRBA and ABA add). Floats are written
+    with :data:`FINGERPRINT_DIGITS` significant digits. What the symbolic algorithms never read
+    (friction, damping, geometry) is left out, so that it causes no rebuild.
     """
-    joints, inertias, limits = {}, {}, {}
+    joints, inertias, limits, armature = {}, {}, {}, {}
     for j in range(model.njoints):
         name = model.names[j]
         inertia = model.inertias[j]
@@ -258,12 +259,20 @@ def model_fingerprint(model: pin.Model) -> dict[str, dict[str, list]]:
             _numbers(model.velocityLimit[v]),
             _numbers(model.effortLimit[v]),
         ]
+        armature[name] = _numbers(model.armature[v])
     frames = {}
     for i, frame in enumerate(model.frames):
         name = frame.name if frame.name not in frames else f"{frame.name}#{i}"  # names may repeat
         frames[name] = [model.names[frame.parentJoint], str(frame.type), _placement(frame.placement)]
     gravity = {"linear": _numbers(model.gravity.linear), "angular": _numbers(model.gravity.angular)}
-    return {"gravity": gravity, "joints": joints, "inertias": inertias, "frames": frames, "limits": limits}
+    return {
+        "gravity": gravity,
+        "joints": joints,
+        "inertias": inertias,
+        "frames": frames,
+        "limits": limits,
+        "armature": armature,
+    }
 
 
 def _digest(data, n: int) -> str:
