@@ -33,11 +33,21 @@ def test_arm_tracking_while_trotting(robot):
 
 def test_disturbance_rejection_recovers_from_a_small_kick(robot):
     """0.3 m/s lateral kicks at two gait phases (the paper's 0.8 m/s is reported by the full run)."""
-    s = run("disturbance_rejection", robot, magnitude=0.3).summary
-    for phase in s["phases"].values():
+    result = run("disturbance_rejection", robot, magnitude=0.3)
+    calves = [
+        j for j, name in enumerate(robot.joint_names) if name.startswith(("RL", "RR")) and "calf" in name
+    ]
+    limits = robot.joint_torque_limits[calves]
+    for label, phase in result.summary["phases"].items():
         assert not phase["fell"]
         assert phase["peak_lateral_velocity_m_per_s"] > 0.25  # the kick happened
-        assert phase["rear_calf_peak_torque_ratio"] <= 1.0 + 1e-6
+        # The reported ratio is of applied torques, clipped to the limits by the low level: it cannot exceed
+        # 1. What is not clipped: the plans' torques, bounded by the OCP's unit-scaled torque rows to the
+        # solver tolerance, and the low level's commands before clipping (counted when over a limit).
+        run_ = result.runs[f"phase_{label}"]
+        planned = np.abs(run_.log.arrays()["plan_tau"][:, calves]) / limits
+        assert 0.1 < planned.max() <= 1.0 + 1e-3, planned.max()
+        assert run_.summary["torque_violations"] == 0
 
 
 def test_pulling_load_moves_the_load(robot):

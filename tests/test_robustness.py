@@ -38,7 +38,9 @@ def test_quick_robustness_grid_gives_the_table_and_figures(table, tmp_path):
     assert {r["magnitude"] for r in rows} == {0.0, 0.8}
     for row in rows:
         assert row["status"] in ("ok", "fell") and row["error"] is None
-        assert 0.0 <= row["calf_torque_ratio"] <= 1.0 + 1e-6  # applied torques are clipped to the limits
+        # Applied torques are clipped to the limits (their ratio cannot exceed 1); the plans' are not: the
+        # OCP's unit-scaled torque rows bound them to the solver tolerance.
+        assert 0.1 < row["calf_torque_ratio_plan"] <= 1.0 + 1e-3, row["calf_torque_ratio_plan"]
         assert 0.0 < row["converged_fraction"] <= 1.0
         assert isinstance(json.loads(row["failure_reasons"]), dict)
     (still,) = [r for r in rows if r["magnitude"] == 0.0]
