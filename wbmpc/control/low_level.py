@@ -10,7 +10,13 @@ on the interval ``[t_k, t_{k+1}]`` that contains ``t`` (node 0 first; if no new 
 the controller moves on to the interval of node 1, and so on while torques exist), and a PD term closes
 the loop at joint level:
 
-.. math::  \\tau = \\tau_{ff} + K_p (q_{des} - q) + K_d (v_{des} - v).
+.. math::  \\tau = \\tau_{ff} + K_p (q_{des} - q) + K_d (v_{des} - v) + \\tau_f(v_{des}).
+
+The last term is an optional friction feed-forward (``friction=``, e.g. the joint friction of a
+calibration file, :meth:`wbmpc.model.calibration.Calibration.joint_friction`):
+:math:`\\tau_f(v) = c \\tanh(v / v_s) + b v` (:class:`wbmpc.model.friction.JointFriction`), evaluated at
+the *desired* joint rate: the planned motion's friction, free of the measured rate's noise and of the
+chatter a feedback on its sign would cause near zero. Without ``friction`` the term is 0.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wbmpc.control.mpc import MPCSolution
+from wbmpc.model.friction import JointFriction
 
 
 @dataclass
@@ -38,13 +45,24 @@ class LowLevelController:
         kp: Joint stiffness [N m/rad], scalar or (nj,).
         kd: Joint damping [N m s/rad], scalar or (nj,).
         torque_limits: Symmetric limits [N m] (nj,) the motor command is clipped to (the motors' own limit).
+        friction: Motor friction to compensate (:class:`~wbmpc.model.friction.JointFriction`, nj joints)
+            by the feed-forward ``c tanh(v_des / v_s) + b v_des`` before clipping; ``None``: none.
+
+    Raises:
+        ValueError: for negative or non-finite gains, or a ``friction`` that is not a ``JointFriction``.
 
     Attributes:
         violations: Number of commands that exceeded ``torque_limits`` before clipping.
         last_reference: The interpolated references behind the last :meth:`torque` command.
     """
 
-    def __init__(self, kp=0.0, kd=0.0, torque_limits: np.ndarray | None = None):
+    def __init__(
+        self,
+        kp=0.0,
+        kd=0.0,
+        torque_limits: np.ndarray | None = None,
+        friction: JointFriction | None = None,
+    ):
         for name, gain in (("kp", kp), ("kd", kd)):
             try:
                 values = np.asarray(gain, dtype=float)
@@ -52,14 +70,29 @@ class LowLevelController:
                 raise ValueError(f"{name} must be a gain >= 0 or an array of them, got {gain!r}") from None
             if values.ndim > 1 or not np.all(np.isfinite(values)) or np.any(values < 0):
                 raise ValueError(f"{name} must be finite gains >= 0 (scalar or (nj,)), got {gain!r}")
+        if friction is not None and not isinstance(friction, JointFriction):
+            raise ValueError(
+                "friction must be a JointFriction (e.g. Calibration.joint_friction(robot)) or None, "
+                f"got {friction!r}"
+            )
         self.kp, self.kd = kp, kd
         self.torque_limits = torque_limits
+        self.friction = friction
         self.plan: MPCSolution | None = None
         self.violations = 0
         self.last_reference: JointCommand | None = None
 
     def update(self, plan: MPCSolution) -> None:
-        """Hand over a new plan (the controller keeps interpolating the last one until then)."""
+        """Hand over a new plan (the controller keeps interpolating the last one until then).
+
+        Raises:
+            ValueError: if the plan's joint count differs from the friction feed-forward's.
+        """
+        if self.friction is not None and np.shape(plan.tau)[-1] != self.friction.nj:
+            raise ValueError(
+                f"the plan has {np.shape(plan.tau)[-1]} joint torques but the friction feed-forward "
+                f"{self.friction.nj} joints"
+            )
         self.plan = plan
 
     def reference(self, t: float) -> JointCommand:
@@ -84,6 +117,8 @@ class LowLevelController:
         """Motor torque command (nj,) [N m] at time ``t`` for the measured joint state in ``q``, ``v``."""
         ref = self.last_reference = self.reference(t)
         tau = ref.tau_ff + self.kp * (ref.q_des - q[7:]) + self.kd * (ref.v_des - v[6:])
+        if self.friction is not None:
+            tau = tau + self.friction.torque(ref.v_des)
         if self.torque_limits is not None:
             self.violations += int(np.any(np.abs(tau) > self.torque_limits * (1 + 1e-6)))
             tau = np.clip(tau, -self.torque_limits, self.torque_limits)
