@@ -6,14 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("rosbags")
+# rosbags is pinned in environment.txt: a broken install must fail here, not skip the file.
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Writer
 
-from rosbags.highlevel import AnyReader  # noqa: E402
-from rosbags.rosbag2 import Writer  # noqa: E402
-
-from wbmpc.control.mpc import MPCConfig, WholeBodyMPC  # noqa: E402
-from wbmpc.io.logs import RunLog, load_log, save_log  # noqa: E402
-from wbmpc.io.rosbag import (  # noqa: E402
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.io.logs import RunLog, load_log, save_log
+from wbmpc.io.rosbag import (
     JointNameError,
     MissingTopicError,
     TimeGapError,
@@ -23,10 +22,10 @@ from wbmpc.io.rosbag import (  # noqa: E402
     read_bag,
     write_bag,
 )
-from wbmpc.model.robot import load_b1_z1  # noqa: E402
-from wbmpc.ocp import OCPSettings  # noqa: E402
-from wbmpc.ocp.gait import make_gait  # noqa: E402
-from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop  # noqa: E402
+from wbmpc.model.robot import load_b1_z1
+from wbmpc.ocp import OCPSettings
+from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
 
 @pytest.fixture(scope="module")

@@ -2,11 +2,12 @@
 
 import math
 
+# distributed and pybullet are pinned in environment.txt: a broken install must fail here, not skip.
+import distributed  # noqa: F401
+import pybullet  # noqa: F401
 import pytest
 
-pytest.importorskip("distributed")
-
-from wbmpc.studies import sweeps  # noqa: E402
+from wbmpc.studies import sweeps
 
 # The case functions live in wbmpc.studies.sweeps: workers import them by name (this module is not
 # importable from a worker process).
@@ -144,7 +145,6 @@ def test_cli_help(capsys):
 def test_quick_study_grids_run_on_the_engine(client, tmp_path, study):
     """The payload, node-count and time-step studies (quick grids: in-process solver, short PyBullet runs)
     run as sweeps and give one complete row per case, and their figures."""
-    pytest.importorskip("pybullet")
     make_cases, fn, _ = sweeps.STUDIES[study]
     cases = make_cases(True)
     run = sweeps.run_sweep(cases, fn, tmp_path / f"{study}.csv", client=client, progress=False)

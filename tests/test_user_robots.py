@@ -189,7 +189,8 @@ def _pybullet(
 ):
     """Mass [kg] and principal inertia [kg m^2] PyBullet gives a child link with ``child`` as its inertial,
     and whether the root stays put under gravity (a fixed base), as the plant loads URDFs."""
-    p = pytest.importorskip("pybullet")
+    import pybullet as p  # pinned in environment.txt: a broken install fails, never skips
+
     urdf = tmp_path / "probe.urdf"
     urdf.write_text(
         f'<robot name="probe"><link name="root">{root}'
@@ -232,7 +233,8 @@ def test_pybullet_welds_a_massless_root_to_the_world(tmp_path):
 
 def test_plant_loads_the_masses_of_the_model(tmp_path):
     """The URDF the plant gives PyBullet has, link by link, the mass of the checked model."""
-    p = pytest.importorskip("pybullet")
+    import pybullet as p  # pinned in environment.txt: a broken install fails, never skips
+
     from wbmpc.sim.pybullet_plant import preprocess_urdf
 
     robot = _load(locked_joints=("arm_joint2",))
