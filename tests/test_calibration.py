@@ -441,6 +441,11 @@ def test_low_level_friction_feedforward_on_the_desired_rate():
     extra = compensated.torque(0.005, q, v) - tau_plain
     np.testing.assert_allclose(extra, [1.0, 0.5] * np.tanh(ref.v_des / 0.05) + [0.2, 0.1] * ref.v_des)
     assert extra[0] < 0 < extra[1]  # the desired rates' signs (the measured ones are the opposite)
+    # The feed-forward a motor drive would receive carries it too, and says which part it is.
+    sent = compensated.last_reference
+    np.testing.assert_allclose(sent.tau_ff - ref.tau_ff, extra)
+    np.testing.assert_allclose(sent.tau_friction, extra)
+    assert ref.tau_friction is None
     clipped = LowLevelController(torque_limits=np.array([5.0, 5.0]), friction=friction)
     clipped.update(_plan())
     assert np.all(np.abs(clipped.torque(0.01, q, v)) <= 5.0) and clipped.violations == 1

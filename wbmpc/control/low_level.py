@@ -13,7 +13,8 @@ the loop at joint level:
 .. math::  \\tau = \\tau_{ff} + K_p (q_{des} - q) + K_d (v_{des} - v) + \\tau_f(v_{des}).
 
 The last term is an optional friction feed-forward (``friction=``, e.g. the joint friction of a
-calibration file, :meth:`wbmpc.model.calibration.Calibration.joint_friction`):
+calibration file, :meth:`wbmpc.model.calibration.Calibration.joint_friction`), part of the feed-forward
+torque of :meth:`LowLevelController.reference` (so that a motor drive given that feed-forward adds it too):
 :math:`\\tau_f(v) = c \\tanh(v / v_s) + b v` (:class:`wbmpc.model.friction.JointFriction`), evaluated at
 the *desired* joint rate: the planned motion's friction, free of the measured rate's noise and of the
 chatter a feedback on its sign would cause near zero. Without ``friction`` the term is 0.
@@ -31,11 +32,18 @@ from wbmpc.model.friction import JointFriction
 
 @dataclass
 class JointCommand:
-    """Interpolated joint references at one instant (joint space only, nj each)."""
+    """Interpolated joint references at one instant (joint space only, nj each).
+
+    Attributes:
+        tau_ff: Feed-forward torque [N m]: the plan's, plus the friction feed-forward if any.
+        q_des: Desired joint positions [rad]; v_des: desired joint rates [rad/s].
+        tau_friction: The friction feed-forward part of ``tau_ff`` [N m] (``None``: no friction given).
+    """
 
     tau_ff: np.ndarray
     q_des: np.ndarray
     v_des: np.ndarray
+    tau_friction: np.ndarray | None = None
 
 
 class LowLevelController:
@@ -96,7 +104,8 @@ class LowLevelController:
         self.plan = plan
 
     def reference(self, t: float) -> JointCommand:
-        """Interpolated feed-forward torque and joint references at time ``t`` [s]."""
+        """Interpolated feed-forward torque and joint references at time ``t`` [s]; the feed-forward includes
+        the friction feed-forward at ``v_des`` (also for a motor drive that closes the PD loop itself)."""
         plan = self.plan
         if plan is None:
             raise RuntimeError("LowLevelController has no MPC plan yet: call update() first")
@@ -111,14 +120,15 @@ class LowLevelController:
             tau_ff = plan.tau[0]
         q_des = plan.q[k][7:] + plan.v[k][6:] * s
         v_des = plan.v[k][6:] + plan.a[k][6:] * s
-        return JointCommand(tau_ff, q_des, v_des)
+        if self.friction is None:
+            return JointCommand(tau_ff, q_des, v_des)
+        friction = self.friction.torque(v_des)
+        return JointCommand(tau_ff + friction, q_des, v_des, friction)
 
     def torque(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Motor torque command (nj,) [N m] at time ``t`` for the measured joint state in ``q``, ``v``."""
         ref = self.last_reference = self.reference(t)
         tau = ref.tau_ff + self.kp * (ref.q_des - q[7:]) + self.kd * (ref.v_des - v[6:])
-        if self.friction is not None:
-            tau = tau + self.friction.torque(ref.v_des)
         if self.torque_limits is not None:
             self.violations += int(np.any(np.abs(tau) > self.torque_limits * (1 + 1e-6)))
             tau = np.clip(tau, -self.torque_limits, self.torque_limits)
