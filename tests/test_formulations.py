@@ -16,6 +16,7 @@ from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
 NAMES = list(FORMULATIONS)
+TOL = 1e-3  # the solver tolerance (paper)
 # Paper, Table I: decision variables with 15 nodes (14 with inputs) and joint torques on 3 nodes.
 PAPER_DECISION_VARIABLES = {
     "inverse_dynamics": 1226,
@@ -99,7 +100,7 @@ def test_fatrop_detects_the_stages_and_converges_standing(standing):
     assert list(stats["nu"]) == expected["nu"]
     assert list(stats["ng"]) == expected["ng"]
     assert cold.success and warm.success, (cold.status, warm.status)
-    assert cold.constraint_violation < 1e-3
+    assert cold.constraint_violation < TOL
     assert warm.iterations <= cold.iterations
 
 
@@ -133,8 +134,11 @@ def test_plan_satisfies_the_equations_of_motion(robot, standing):
             local = R.T @ force
             fext[frame.parentJoint] += pin.Force(local, np.cross(frame.placement.translation, local))
         tau = pin.rnea(model, data, q, v, a, fext)
-        assert np.abs(tau[:6]).max() < 1.0  # N, N m: the base wrench a 600 N robot cannot produce
-        assert np.abs(tau[6:] - cold.tau[k]).max() < 1.0
+        # The inverse-dynamics rows (base = 0, joints = tau) are equality constraints in N and N m: a
+        # converged solve meets them to the solver tolerance. The other formulations reconstruct the plan's
+        # accelerations and torques so that the same rows hold (their own rows are met to it too).
+        assert np.abs(tau[:6]).max() < TOL, tau[:6]
+        assert np.abs(tau[6:] - cold.tau[k]).max() < TOL
 
 
 @pytest.mark.parametrize("name", [n for n in NAMES if n.startswith("centroidal")])
