@@ -35,6 +35,7 @@ import pinocchio as pin
 
 from wbmpc import checks
 from wbmpc.control.arm_task import ArmReference, heading_frame, velocity_command
+from wbmpc.control.delay import DelayEstimate, predict_state
 from wbmpc.control.diagnostics import FailureReporter
 from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCSolution, WholeBodyMPC
@@ -43,6 +44,7 @@ from wbmpc.ocp.gait import Gait, GaitSchedule
 from wbmpc.ocp.time_grid import node_times
 from wbmpc.sim.disturbances import Disturbance, Kick, Push
 from wbmpc.sim.hardware import EstimatedState, HardwareProfile, PlannedContacts, estimate_errors
+from wbmpc.sim.motor_drive import MotorDrive
 from wbmpc.sim.plant import ContactPlant, fallen
 from wbmpc.sim.sensing import SensorNoise, StateSensor
 
@@ -59,6 +61,15 @@ class ClosedLoopConfig:
         plant: ``"rigid"`` (Pinocchio forward dynamics, scheduled feet in rigid contact: the paper's
             benchmark) or ``"pybullet"`` (a physics engine: contacts happen, feet can slip).
         kp, kd: Joint PD gains of the low level [N m/rad], [N m s/rad] (paper, simulation without delay: 0).
+        joint_pd: Where the joint PD law runs: ``"controller"`` (the 500 Hz low level computes the torque
+            from the controller's state and the plant applies it, the paper's simulation) or ``"drive"``
+            (:class:`wbmpc.sim.motor_drive.MotorDrive`: the low level sends setpoints, feed-forward and
+            gains at 500 Hz and the motor drivers evaluate the law at every plant step on the joint
+            encoders, as Unitree's robots do; a hardware profile's torque latency then delays the
+            setpoints, not the damping loop).
+        friction_feedforward: When the MPC's robot carries a calibration (``load_b1_z1(calibration=...)``),
+            the low level adds its identified joint friction at the desired joint rates
+            (:class:`wbmpc.control.low_level.LowLevelController` ``friction``); False: never.
         base_velocity: Commanded base linear velocity [m/s], heading frame, of the walking segments; a gait
             schedule's segments may name their own (``trot@0.5:4``, :meth:`GaitSchedule.velocity_at`) and a
             stand segment stands still unless it does.
@@ -80,6 +91,10 @@ class ClosedLoopConfig:
         max_tilt: Roll/pitch [rad] beyond which the run counts as a fall.
         delay: Computation delay: ``"off"``, ``"measured"`` (the wall time of each whole
             :meth:`~wbmpc.control.mpc.WholeBodyMPC.solve` call) or seconds.
+        delay_compensation: With a delay, plan from the state predicted for the time the plan will arrive
+            (:mod:`wbmpc.control.delay`: the measurement moved along the plan being executed by the
+            expected delay, the fixed one or a high quantile of the recent solve calls) instead of from the
+            measurement's own time.
         sensor_noise: Measurement noise (``None``: ground truth).
         velocity_cutoff_hz: Joint-velocity low-pass cut-off [Hz] (paper: 50; ``None``: unfiltered).
         scene: PyBullet scene objects (:class:`~wbmpc.sim.pybullet_plant.Box`, ``Wall``, ``Payload``).
@@ -112,6 +127,8 @@ class ClosedLoopConfig:
     plant: str = "rigid"
     kp: float = 0.0
     kd: float = 0.0
+    joint_pd: str = "controller"
+    friction_feedforward: bool = True
     base_velocity: tuple[float, float, float] = (0.2, 0.0, 0.0)
     base_yaw_rate: float = 0.0
     arm_reference: ArmReference | None = field(default_factory=ArmReference)
@@ -122,6 +139,7 @@ class ClosedLoopConfig:
     ee_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_tilt: float = 1.0
     delay: str | float = "off"
+    delay_compensation: bool = False
     sensor_noise: SensorNoise | None = None
     velocity_cutoff_hz: float | None = None
     scene: Sequence = ()
@@ -142,6 +160,10 @@ class ClosedLoopConfig:
             raise ValueError(f"delay must be 'off', 'measured' or seconds >= 0, got {self.delay!r}")
         if self.plant not in ("rigid", "pybullet"):
             raise ValueError(f"unknown plant {self.plant!r}; available: 'rigid', 'pybullet'")
+        if self.joint_pd not in ("controller", "drive"):
+            raise ValueError(
+                f"ClosedLoopConfig.joint_pd must be 'controller' or 'drive', got {self.joint_pd!r}"
+            )
         if self.ee_velocity_frame not in ("heading", "world"):
             raise ValueError(
                 "ClosedLoopConfig.ee_velocity_frame must be 'heading' or 'world', "
@@ -531,7 +553,16 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
     state = plant.reset(q0, np.zeros(model.nv))
     kp, kd = _joint_gains(robot, config)
-    low = LowLevelController(kp, kd, torque_limits=robot.joint_torque_limits)
+    # A calibrated MPC model brings the joints' identified friction: the low level feeds it forward.
+    calibration = getattr(robot, "calibration", None)
+    friction = (
+        calibration.joint_friction(robot) if calibration is not None and config.friction_feedforward else None
+    )
+    low = LowLevelController(kp, kd, torque_limits=robot.joint_torque_limits, friction=friction)
+    drive = None
+    if config.joint_pd == "drive":
+        latency = 0.0 if config.hardware is None else config.hardware.torque_latency
+        drive = MotorDrive(kp, kd, robot.joint_torque_limits, round(latency / config.plant_dt))
     sensor = StateSensor(model, per_low * config.plant_dt, config.sensor_noise, config.velocity_cutoff_hz)
     # The MPC's plan (the gait schedule with any swing aborted after a push) decides the rigid plant's
     # contacts and the estimator's, and is what the logs record.
@@ -564,13 +595,16 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     if estimator is not None:
         q_meas, v_meas = estimator.reset(state.q, state.v)
     pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
+    expected_delay = DelayEstimate(None if config.delay in ("off", "measured") else float(config.delay))
     busy_until = 0  # plant step before which no new solve can start (the solver is working)
     cmd = _commands(config, 0.0, schedule)
     scene_names = plant.body_names if pybullet else []
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
 
     def run_summary(columns: Mapping, fell: bool) -> dict:  # columns from memory or the streamed file
-        summary = summarize(mpc, columns, config, fell, low.violations, plant)
+        clipped = low.violations if drive is None else drive.violations
+        summary = summarize(mpc, columns, config, fell, clipped, plant)
+        summary["joint_pd"] = config.joint_pd
         summary["diagnostics"] = reporter.summary()
         summary["scene_bodies"] = list(scene_names)
         summary["state"] = config.state
@@ -595,6 +629,9 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if sensor.is_ground_truth and estimator is None:
                 q_meas, v_meas = q.copy(), v.copy()
             cmd = _commands(config, t, schedule)
+            t_plan = t
+            if config.delay_compensation and config.delay != "off" and low.plan is not None:
+                t_plan = t + math.ceil(expected_delay.expected() / config.plant_dt - 1e-9) * config.plant_dt
             commands = Commands(
                 base_linear_velocity=cmd["base_velocity"],
                 base_angular_velocity=np.array([0, 0, cmd["base_yaw_rate"]]),
@@ -611,7 +648,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
                         hold[1] = t
                         reference, local_velocity = ArmReference.still(hold[0]), cmd["ee_velocity"]
                     R_heading, _ = heading_frame(q_meas)
-                    stage_times = node_times(mpc.time_steps(), t)[:-1] if config.arm_preview else None
+                    stage_times = node_times(mpc.time_steps(), t_plan)[:-1] if config.arm_preview else None
                     ee_cmd, ee_ref = velocity_command(
                         reference,
                         q_meas,
@@ -627,7 +664,11 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
                     ee_cmd = cmd["ee_velocity"]
                 commands.ee_velocity = ee_cmd
                 log.ee_command.append(ee_cmd if ee_cmd.ndim == 1 else ee_cmd[:, 0])
-            plan = mpc.solve(q_meas, v_meas, t, commands)
+            q_plan, v_plan = q_meas, v_meas
+            if t_plan > t:  # plan from where the robot will be when the plan arrives
+                q_plan, v_plan = predict_state(model, low.plan, q_meas, v_meas, t, t_plan)
+            plan = mpc.solve(q_plan, v_plan, t_plan, commands)
+            expected_delay.record(plan.timings.get("total", plan.solve_time))
             if plan.fallback:
                 kept = "static hold applied" if plan.hold else "previous plan kept"
                 reporter.report(t, plan.status, f"{plan.reason} ({kept})")
@@ -660,7 +701,14 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
                 q_meas, v_meas = sensor.measure(q, v)  # ground truth: plain copies
             else:
                 q_meas, v_meas = estimator.measure(q, v, t)
-            tau = low.torque(t, q_meas, v_meas)
+            if drive is None:
+                tau = low.torque(t, q_meas, v_meas)
+            else:  # the drivers close the loop; the controller sends setpoints
+                ref = low.last_reference = low.reference(t)
+                drive.command(ref.tau_ff, ref.q_des, ref.v_des)
+        if drive is not None:
+            tau = drive.torque(q[7:], v[6:])
+        if step % per_low == 0:
             log.t.append(t)
             log.q.append(q.copy())
             log.v.append(v.copy())
@@ -767,6 +815,8 @@ def make_plant(robot, config: ClosedLoopConfig):
         from wbmpc.sim.pybullet_plant import PyBulletPlant
 
         options = {} if config.hardware is None else config.hardware.plant_options(robot)
+        if config.joint_pd == "drive":
+            options["torque_latency"] = 0.0  # the drive delays its setpoints instead (MotorDrive)
         return PyBulletPlant(
             robot, dt=config.plant_dt, ground_friction=config.ground_friction, scene=config.scene, **options
         )

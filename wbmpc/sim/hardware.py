@@ -13,7 +13,9 @@ Two ways to use it:
   profile: the plant's friction, armature, centre-of-mass offset and latency, and the IMU and encoder
   errors the estimator reads (``state="estimated"``); every controller setting stays the config's own.
 * :func:`hardware_config` is the preset: the same plus the controller settings of the profile (estimated
-  state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter),
+  state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter) and
+  the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on Unitree's robots) and
+  the computation-delay compensation (:mod:`wbmpc.control.delay`),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
 What the mismatches do to the MPC (issue 13, ``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
@@ -227,6 +229,8 @@ def hardware_config(profile: HardwareProfile | None = None, **overrides):
         "kd": profile.leg_gains[1],
         "arm_gains": tuple(profile.arm_gains),
         "velocity_cutoff_hz": profile.velocity_cutoff_hz,
+        "joint_pd": "drive",
+        "delay_compensation": True,
     }
     return ClosedLoopConfig(**(preset | overrides))
 

@@ -26,6 +26,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.model.base_com import base_com_link, shift_base_com
+
 __all__ = [
     "BUDGET_S",
     "ROBOT_TOPICS",
@@ -423,31 +425,6 @@ def foot_forces_from_torques(robot, q: np.ndarray, tau: np.ndarray, v=None, a=No
     return forces
 
 
-def base_com_link(robot) -> tuple[str, float]:
-    """The link whose centre of mass a base offset moves and its mass [kg]: the heaviest link rigidly
-    attached to the root (as :func:`wbmpc.sim.pybullet_plant.offset_base_com`; the B1's ``trunk``)."""
-    import xml.etree.ElementTree as ET
-
-    root = ET.parse(robot.urdf_path).getroot()
-    links = {link.get("name"): link for link in root.iter("link")}
-    children = {c.get("link") for c in root.iter("child")}
-    base = next(name for name in links if name not in children)
-    rigid, stack = {base}, [base]
-    while stack:
-        parent = stack.pop()
-        for joint in root.iter("joint"):
-            if joint.get("type") == "fixed" and joint.find("parent").get("link") == parent:
-                rigid.add(joint.find("child").get("link"))
-                stack.append(joint.find("child").get("link"))
-
-    def mass(name):
-        element = links[name].find("inertial/mass")
-        return 0.0 if element is None else float(element.get("value", 0.0))
-
-    heavy = max(sorted(rigid), key=mass)
-    return heavy, mass(heavy)
-
-
 @dataclass
 class ComIdentification:
     """The base's centre-of-mass offset identified from a standing log.
@@ -563,36 +540,6 @@ def _yaw_sin_cos(q: np.ndarray) -> tuple[float, float]:
     return 2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)
 
 
-def shift_base_com(robot, offset, front_force_ratio: float | None = None):
-    """A copy of ``robot`` whose base link's centre of mass moved by ``offset`` [m] (base frame).
-
-    The mass moved is the heaviest link rigidly attached to the root (:func:`base_com_link`), as the emulated
-    robot does (:func:`wbmpc.sim.pybullet_plant.offset_base_com`), so an identified offset rebuilds that
-    robot's model. The base body's inertia in the reduced model changes by the link's parallel-axis terms.
-
-    Args:
-        robot: The nominal robot.
-        offset: Shift [m] (3,), base frame (assumes the link's frame is aligned with the base's).
-        front_force_ratio: New share of the weight on the front feet in the force targets (``None``: kept).
-
-    Returns:
-        A new :class:`~wbmpc.model.robot.Robot` (the original is unchanged).
-    """
-    _, m = base_com_link(robot)
-    model = robot.model.copy()
-    body = model.inertias[1]
-    # Moving a point mass m by d shifts the body's first moment by m d; the rotational inertia about the
-    # body's new CoM follows from the dynamic parameters (linear in the mass distribution).
-    old = pin.Inertia(m, body.lever, np.zeros((3, 3)))
-    new = pin.Inertia(m, body.lever + np.asarray(offset, float), np.zeros((3, 3)))
-    params = body.toDynamicParameters() - old.toDynamicParameters() + new.toDynamicParameters()
-    model.inertias[1] = pin.Inertia.FromDynamicParameters(params)
-    changes = {"model": model}
-    if front_force_ratio is not None:
-        changes["front_force_ratio"] = float(front_force_ratio)
-    return replace(robot, **changes)
-
-
 # ------------------------------------------------------------------------------------------------- lean
 def lean(
     log, mask: np.ndarray | None = None, robot=None, rear: tuple[int, ...] = (2, 3), samples: int = 400
@@ -651,6 +598,7 @@ def record_emulated_run(
     front_force_ratio: float | None = None,
     progress: bool = False,
     gait: str | None = None,
+    mpc=None,
     **overrides,
 ):
     """A run of the MPC on the emulated robot (:func:`wbmpc.sim.hardware.hardware_config`): stand, then trot.
@@ -671,6 +619,8 @@ def record_emulated_run(
         progress: Progress bar.
         gait: A gait schedule instead (:func:`wbmpc.ocp.gait.parse_gait_schedule`, e.g.
             ``"stand:2,trot@0.2:10,trot@0.5:5"``); the run lasts its duration.
+        mpc: An MPC to run (e.g. with an observer attached), its gait replaced by the schedule; ``None``
+            builds one for ``mpc_robot`` with ``nodes``, ``compiled`` and ``front_force_ratio``.
         **overrides: :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig` fields (``delay``, ``kp``, ...).
 
     Returns:
@@ -687,9 +637,12 @@ def record_emulated_run(
     spec = gait or (f"stand:{stand:g},trot@{speed:g}:{trot:g}" if trot > 0 else "stand")
     schedule = parse_gait_schedule(spec)
     duration = schedule.duration if gait else stand + trot
-    config = MPCConfig(gait=schedule, compiled=compiled, front_force_ratio=front_force_ratio)
-    mpc = WholeBodyMPC(mpc_robot or robot, OCPSettings(n_nodes=nodes), config)
-    mpc.verbose = False
+    if mpc is None:
+        config = MPCConfig(gait=schedule, compiled=compiled, front_force_ratio=front_force_ratio)
+        mpc = WholeBodyMPC(mpc_robot or robot, OCPSettings(n_nodes=nodes), config)
+        mpc.verbose = False
+    else:
+        mpc.config = replace(mpc.config, gait=schedule)
     options = {"arm_reference": None, "ee_velocity_frame": "heading"} | overrides
     run = hardware_config(profile, duration=duration, **options)
     return run_closed_loop(mpc, run, progress=progress), mpc

@@ -1,0 +1,76 @@
+"""The robot's motor drivers: the joint PD law evaluated at the drive, on the drive's own encoder.
+
+On Unitree's legged robots (the B1/B2 low-level interface, ``rt/lowcmd``) the controller does not send
+torques: it sends, per motor, a position and velocity setpoint, a feed-forward torque and the gains, and
+the motor driver closes the loop at its own rate on its own encoder,
+
+.. math::  \\tau = \\mathrm{clip}\\big(\\tau_{ff} + k_p (q_{des} - q) + k_d (\\dot q_{des} - \\dot q)\\big).
+
+The communication latency then delays the *setpoints*, never the damping loop, and the controller's
+velocity filter is not inside it. :class:`MotorDrive` emulates that: the low level hands it a command at
+500 Hz (:meth:`MotorDrive.command`), which takes effect ``latency_steps`` plant steps later and is held
+until the next one; :meth:`MotorDrive.torque` evaluates the law at every plant step on the joint state
+the plant measures.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+__all__ = ["MotorDrive"]
+
+
+class MotorDrive:
+    """Joint PD + feed-forward at the motor driver, with a command latency.
+
+    Args:
+        kp: Stiffness [N m/rad], scalar or (nj,).
+        kd: Damping [N m s/rad], scalar or (nj,).
+        torque_limits: Symmetric motor limits [N m] (nj,) the torque is clipped to.
+        latency_steps: Plant steps between a command being sent and the drive using it (>= 0).
+
+    Attributes:
+        violations: Plant steps at which the law asked for more than ``torque_limits`` (clipped).
+
+    Raises:
+        ValueError: negative or non-finite gains or limits, a negative latency.
+    """
+
+    def __init__(self, kp, kd, torque_limits: np.ndarray, latency_steps: int = 0):
+        self.kp = np.asarray(kp, dtype=float)
+        self.kd = np.asarray(kd, dtype=float)
+        self.torque_limits = np.asarray(torque_limits, dtype=float)
+        for name, value in (("kp", self.kp), ("kd", self.kd), ("torque_limits", self.torque_limits)):
+            if not np.all(np.isfinite(value)) or np.any(value < 0):
+                raise ValueError(f"MotorDrive {name} must be finite and >= 0, got {value!r}")
+        if int(latency_steps) != latency_steps or latency_steps < 0:
+            raise ValueError(f"MotorDrive latency_steps must be an integer >= 0, got {latency_steps!r}")
+        self.latency_steps = int(latency_steps)
+        self.violations = 0
+        self._queue: deque = deque()
+        self._active = None  # (tau_ff, q_des, v_des) in force
+        self._step = 0
+
+    def command(self, tau_ff: np.ndarray, q_des: np.ndarray, v_des: np.ndarray) -> None:
+        """Send a command (nj each; [N m], [rad], [rad/s]); it takes effect ``latency_steps`` steps later."""
+        entry = (self._step + self.latency_steps, np.array(tau_ff), np.array(q_des), np.array(v_des))
+        if self._active is None:  # the drive starts on the first command
+            self._active = entry[1:]
+        self._queue.append(entry)
+
+    def torque(self, q_joint: np.ndarray, v_joint: np.ndarray) -> np.ndarray:
+        """Motor torque (nj,) [N m] at this plant step for the measured joint positions and rates; then
+        advances one step. Zero before the first command.
+        """
+        while self._queue and self._queue[0][0] <= self._step:
+            self._active = self._queue.popleft()[1:]
+        self._step += 1
+        if self._active is None:
+            return np.zeros_like(self.torque_limits)
+        tau_ff, q_des, v_des = self._active
+        tau = tau_ff + self.kp * (q_des - q_joint) + self.kd * (v_des - v_joint)
+        if np.any(np.abs(tau) > self.torque_limits * (1 + 1e-6)):
+            self.violations += 1
+        return np.clip(tau, -self.torque_limits, self.torque_limits)
