@@ -1,0 +1,92 @@
+"""Base commands other than the forward speed, in closed loop on the rigid plant: a yaw rate turns the robot
+the commanded way, a base height raises or lowers the base to it. Outcomes are signed: a command with the
+wrong sign, or one ignored, fails."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import heading, load_b1_z1
+from wbmpc.ocp import OCPSettings
+from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_b1_z1()
+
+
+def test_a_yaw_rate_command_turns_the_robot_the_commanded_way(robot):
+    """Trotting in place with +0.4 rad/s commanded (left, counter-clockwise seen from above) for 1.2 s:
+    the heading grows by at least 40 % of the commanded 0.48 rad (the robot starts at rest), the yaw rate
+    of the last 0.4 s is positive, and the base stays near its start."""
+    yaw_rate, duration = 0.4, 1.2
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=10), MPCConfig(gait=make_gait("trot")))
+    mpc.verbose = False
+    config = ClosedLoopConfig(
+        duration=duration, base_velocity=(0.0, 0.0, 0.0), base_yaw_rate=yaw_rate, arm_reference=None
+    )
+    result = run_closed_loop(mpc, config, progress=False)
+    assert not result.fell and result.summary["converged_fraction"] >= 0.95
+    log = result.log.arrays()
+    yaw = np.unwrap([heading(q) for q in log["q"]])
+    turned = yaw[-1] - yaw[0]
+    assert turned > 0.4 * yaw_rate * duration, turned
+    assert turned < 1.5 * yaw_rate * duration, turned
+    late = log["t"] > duration - 0.4
+    rate = np.polyfit(log["t"][late], yaw[late], 1)[0]
+    assert rate > 0.5 * yaw_rate, rate
+    assert np.linalg.norm(log["q"][-1, :2] - log["q"][0, :2]) < 0.1  # turning in place, not walking away
+
+
+OFFSETS = {"lower": -0.06, "higher": 0.03}  # [m] from the nominal base height
+
+
+@pytest.fixture(scope="module")
+def heights(robot):
+    """Standing 1 s with ``Commands.base_height`` 6 cm below and 3 cm above the nominal height: the logged
+    base heights per run. The closed loop has no base-height setting, so each solve's commands get it."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=8), MPCConfig(gait=make_gait("stand")))
+    mpc.verbose = False
+    solve = mpc.solve
+    out = {}
+    for name, offset in OFFSETS.items():
+        target = float(robot.q_nominal[2] + offset)
+
+        def solve_at_height(q_hat, v_hat, t=0.0, commands=None, warm_start=True, target=target):
+            return solve(q_hat, v_hat, t, replace(commands or Commands(), base_height=target), warm_start)
+
+        mpc.solve = solve_at_height
+        config = ClosedLoopConfig(duration=1.0, base_velocity=(0.0, 0.0, 0.0), arm_reference=None)
+        result = run_closed_loop(mpc, config, progress=False)
+        assert not result.fell and result.summary["converged_fraction"] >= 0.95
+        out[name] = (target, result.log.arrays()["q"][:, 2])
+    del mpc.solve
+    return out
+
+
+def test_a_base_height_command_moves_the_base_the_commanded_way(heights):
+    """The base ends lower under the lower command than under the higher one (measured today: by 2.3 mm;
+    see the next test for why so little); a sign error or an ignored command gives <= 0."""
+    (_, lower), (_, higher) = heights["lower"], heights["higher"]
+    assert lower[0] == higher[0]
+    assert higher[-1] - lower[-1] > 1e-3, (lower[-1], higher[-1])
+    assert lower[-1] < lower[0] - 1e-3
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="desired_configuration sets only q_des[2]: the leg joints keep their nominal angles, which at "
+    "another base height would lift the feet off the ground or push them in, and the leg posture weights "
+    "outweigh the height's; a -6 cm command ends 1.9 mm lower, -15 cm 4.2 mm (plateaus). Library change "
+    "requested in wbmpc/control/mpc.py: with base_height commanded, desire the leg joint angles that keep "
+    "the feet where they are under that base height (IK); emulated, the base is 7.5 mm from a -6 cm "
+    "target and 3 mm from a +3 cm one after 1 s.",
+)
+@pytest.mark.parametrize("name", list(OFFSETS))
+def test_a_base_height_command_reaches_the_height(heights, name):
+    target, z = heights[name]
+    assert abs(z[-1] - target) < 0.01, (z[-1], target)
