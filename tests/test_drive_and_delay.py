@@ -22,6 +22,7 @@ def test_law_latency_hold_and_clipping():
     # Step 4 = sent + 2: the new command, its first joint clipped to 5 N m and counted.
     np.testing.assert_allclose(drive.torque(q, v), [5.0, 2.0])
     assert drive.violations == 1
+    np.testing.assert_array_equal(drive.clipped_steps, [1, 0])
     # The damping acts on the state given at each step (not on a filtered or delayed one).
     np.testing.assert_allclose(drive.torque(q, v + 1.0)[1], 2.0 - 2.0)
 
@@ -77,7 +78,7 @@ def test_delay_estimate_fixed_quantile_and_cap():
     from wbmpc.control.delay import DelayEstimate
 
     assert DelayEstimate(fixed=0.02).expected() == 0.02
-    estimate = DelayEstimate(window=5, quantile=1.0, cap=0.05)
+    estimate = DelayEstimate(window=5, quantile=1.0, cap=0.05)  # at most 4 MPC periods
     assert estimate.expected() == 0.0
     for seconds in (0.010, 0.012, 0.030, 0.011, 0.013, 0.014):  # the first falls out of the window
         estimate.record(seconds)
@@ -86,3 +87,20 @@ def test_delay_estimate_fixed_quantile_and_cap():
     assert estimate.expected() == 0.05  # capped
     with pytest.raises(ValueError, match="quantile"):
         DelayEstimate(quantile=1.5)
+
+
+def test_command_ramp_limits_the_acceleration():
+    from wbmpc.control.command_ramp import CommandRamp
+
+    ramp = CommandRamp(linear=1.0, yaw=0.5)
+    v, w = ramp(0.0, np.zeros(3), 0.0)
+    np.testing.assert_array_equal(v, 0.0)
+    v, w = ramp(0.1, np.array([0.3, 0.4, 0.0]), 1.0)  # a 0.5 m/s step: 0.1 m/s along it after 0.1 s
+    np.testing.assert_allclose(v, [0.06, 0.08, 0.0])
+    assert w == pytest.approx(0.05)
+    for k in range(2, 12):
+        v, w = ramp(0.1 * k, np.array([0.3, 0.4, 0.0]), 1.0)
+    np.testing.assert_allclose(v, [0.3, 0.4, 0.0])  # reached after 0.5 s, then held
+    assert w == pytest.approx(0.55)
+    with pytest.raises(ValueError, match="CommandRamp.linear"):
+        CommandRamp(linear=0.0)

@@ -72,7 +72,9 @@ class DelayEstimate:
         ValueError: a negative fixed delay, a window < 1, a quantile outside [0, 1], a cap <= 0.
     """
 
-    def __init__(self, fixed: float | None = None, window: int = 20, quantile: float = 0.8, cap: float = 0.1):
+    def __init__(
+        self, fixed: float | None = None, window: int = 20, quantile: float = 0.8, cap: float = 0.05
+    ):
         if fixed is not None and not (np.isfinite(fixed) and fixed >= 0):
             raise ValueError(f"DelayEstimate fixed must be a delay >= 0 [s] or None, got {fixed!r}")
         if int(window) != window or window < 1:

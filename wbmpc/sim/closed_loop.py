@@ -35,6 +35,7 @@ import pinocchio as pin
 
 from wbmpc import checks
 from wbmpc.control.arm_task import ArmReference, heading_frame, velocity_command
+from wbmpc.control.command_ramp import CommandRamp
 from wbmpc.control.delay import DelayEstimate, predict_state
 from wbmpc.control.diagnostics import FailureReporter
 from wbmpc.control.low_level import LowLevelController
@@ -91,6 +92,13 @@ class ClosedLoopConfig:
         max_tilt: Roll/pitch [rad] beyond which the run counts as a fall.
         delay: Computation delay: ``"off"``, ``"measured"`` (the wall time of each whole
             :meth:`~wbmpc.control.mpc.WholeBodyMPC.solve` call) or seconds.
+        mpc_schedule: When solves start: ``"ticks"`` (on the MPC rate's ticks, the first one after the
+            previous plan arrived: a solve slightly longer than a period halves the rate) or ``"free"`` (at
+            the first low-level tick after the previous plan arrived, but no sooner than one MPC period
+            after the previous solve started: an asynchronous MPC worker that restarts when it is done).
+        command_ramp: ``(linear [m/s^2], yaw [rad/s^2])`` acceleration limits of the base velocity command
+            (:class:`wbmpc.control.command_ramp.CommandRamp`), e.g. between a gait schedule's segments;
+            ``None``: commands change in steps.
         delay_compensation: With a delay, plan from the state predicted for the time the plan will arrive
             (:mod:`wbmpc.control.delay`: the measurement moved along the plan being executed by the
             expected delay, the fixed one or a high quantile of the recent solve calls) instead of from the
@@ -140,6 +148,8 @@ class ClosedLoopConfig:
     max_tilt: float = 1.0
     delay: str | float = "off"
     delay_compensation: bool = False
+    command_ramp: tuple[float, float] | None = None
+    mpc_schedule: str = "ticks"
     sensor_noise: SensorNoise | None = None
     velocity_cutoff_hz: float | None = None
     scene: Sequence = ()
@@ -160,6 +170,10 @@ class ClosedLoopConfig:
             raise ValueError(f"delay must be 'off', 'measured' or seconds >= 0, got {self.delay!r}")
         if self.plant not in ("rigid", "pybullet"):
             raise ValueError(f"unknown plant {self.plant!r}; available: 'rigid', 'pybullet'")
+        if self.mpc_schedule not in ("ticks", "free"):
+            raise ValueError(
+                f"ClosedLoopConfig.mpc_schedule must be 'ticks' or 'free', got {self.mpc_schedule!r}"
+            )
         if self.joint_pd not in ("controller", "drive"):
             raise ValueError(
                 f"ClosedLoopConfig.joint_pd must be 'controller' or 'drive', got {self.joint_pd!r}"
@@ -216,6 +230,12 @@ class ClosedLoopConfig:
             checks.vector(name + key, getattr(self, key), 3)
         if isinstance(self.delay, int | float) and not isinstance(self.delay, bool):
             checks.number(name + "delay", self.delay, low=0.0, unit="s")
+        if self.command_ramp is not None:
+            limits = checks.vector(name + "command_ramp", self.command_ramp, 2)
+            if np.any(limits <= 0):
+                raise ValueError(
+                    f"{name}command_ramp (linear, yaw) limits must be > 0, got {self.command_ramp!r}"
+                )
         if self.velocity_cutoff_hz is not None:
             cutoff = self.velocity_cutoff_hz
             checks.number(name + "velocity_cutoff_hz", cutoff, low=0.0, low_open=True, unit="Hz")
@@ -595,8 +615,11 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     if estimator is not None:
         q_meas, v_meas = estimator.reset(state.q, state.v)
     pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
+    ramp = None if config.command_ramp is None else CommandRamp(*config.command_ramp)
     expected_delay = DelayEstimate(None if config.delay in ("off", "measured") else float(config.delay))
     busy_until = 0  # plant step before which no new solve can start (the solver is working)
+    next_solve = 0  # plant step of the next MPC tick
+    contacts_from = 0  # plant step at which period_contacts begins
     cmd = _commands(config, 0.0, schedule)
     scene_names = plant.body_names if pybullet else []
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
@@ -605,6 +628,11 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
         clipped = low.violations if drive is None else drive.violations
         summary = summarize(mpc, columns, config, fell, clipped, plant)
         summary["joint_pd"] = config.joint_pd
+        if drive is not None:
+            names = robot.joint_names
+            summary["torque_clipped_steps_by_joint"] = {
+                names[i]: int(n) for i, n in enumerate(drive.clipped_steps) if n
+            }
         summary["diagnostics"] = reporter.summary()
         summary["scene_bodies"] = list(scene_names)
         summary["state"] = config.state
@@ -625,10 +653,20 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
         if pending is not None and step >= pending[0]:
             low.update(pending[1])
             pending = None
-        if step % per_mpc == 0 and step >= busy_until:
+        solve_now = step >= busy_until and step >= next_solve
+        if config.mpc_schedule == "ticks":
+            solve_now = solve_now and step % per_mpc == 0
+        else:  # free-running: the next solve starts at the first low-level tick after the last plan arrived
+            solve_now = solve_now and step % per_low == 0
+        if solve_now:
+            next_solve = step + per_mpc
             if sensor.is_ground_truth and estimator is None:
                 q_meas, v_meas = q.copy(), v.copy()
             cmd = _commands(config, t, schedule)
+            if ramp is not None:
+                cmd["base_velocity"], cmd["base_yaw_rate"] = ramp(
+                    t, cmd["base_velocity"], cmd["base_yaw_rate"]
+                )
             t_plan = t
             if config.delay_compensation and config.delay != "off" and low.plan is not None:
                 t_plan = t + math.ceil(expected_delay.expected() / config.plant_dt - 1e-9) * config.plant_dt
@@ -668,7 +706,8 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if t_plan > t:  # plan from where the robot will be when the plan arrives
                 q_plan, v_plan = predict_state(model, low.plan, q_meas, v_meas, t, t_plan)
             plan = mpc.solve(q_plan, v_plan, t_plan, commands)
-            expected_delay.record(plan.timings.get("total", plan.solve_time))
+            if step > 0:  # the cold first solve, before the robot moves, says nothing of the next ones
+                expected_delay.record(plan.timings.get("total", plan.solve_time))
             if plan.fallback:
                 kept = "static hold applied" if plan.hold else "previous plan kept"
                 reporter.report(t, plan.status, f"{plan.reason} ({kept})")
@@ -680,7 +719,9 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
                 low.update(plan)
                 apply_step = step
             else:
-                apply_step = step + delay
+                # A compensated plan starts at t_plan: one that is ready sooner waits for it (the plan in use
+                # covers the time until then), one that is late is used part-way.
+                apply_step = max(step + delay, round(t_plan / config.plant_dt))
                 pending = (apply_step, plan)
             busy_until = apply_step
             _log_solve(log, plan, keep_plans, apply_step * config.plant_dt)
@@ -690,12 +731,13 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if fallen(state, max_tilt=config.max_tilt):
                 fell = True
                 break
-        if step % per_mpc == 0:
+        if solve_now or step - contacts_from >= per_mpc or step == 0:
             # The contact plan of the coming MPC period in one vectorised call, sampled after this tick's
             # solve: the MPC's plan (the gait schedule with any swing aborted after a push), so the rigid
             # plant, the logs and the MPC share one plan.
             period_contacts = contact_plan(config.plant_dt * np.arange(step, step + per_mpc))
-        contact = period_contacts[:, step % per_mpc]
+            contacts_from = step
+        contact = period_contacts[:, step - contacts_from]
         if step % per_low == 0:
             if estimator is None:
                 q_meas, v_meas = sensor.measure(q, v)  # ground truth: plain copies

@@ -15,7 +15,8 @@ Two ways to use it:
 * :func:`hardware_config` is the preset: the same plus the controller settings of the profile (estimated
   state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter) and
   the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on Unitree's robots) and
-  the computation-delay compensation (:mod:`wbmpc.control.delay`),
+  the computation-delay compensation (:mod:`wbmpc.control.delay`) and acceleration-limited velocity
+  commands (1 m/s^2, 1 rad/s^2, :mod:`wbmpc.control.command_ramp`),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
 What the mismatches do to the MPC (issue 13, ``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
@@ -231,6 +232,7 @@ def hardware_config(profile: HardwareProfile | None = None, **overrides):
         "velocity_cutoff_hz": profile.velocity_cutoff_hz,
         "joint_pd": "drive",
         "delay_compensation": True,
+        "command_ramp": (1.0, 1.0),
     }
     return ClosedLoopConfig(**(preset | overrides))
 

@@ -33,6 +33,7 @@ class MotorDrive:
 
     Attributes:
         violations: Plant steps at which the law asked for more than ``torque_limits`` (clipped).
+        clipped_steps: Per joint (nj,), the plant steps at which that joint was clipped.
 
     Raises:
         ValueError: negative or non-finite gains or limits, a negative latency.
@@ -49,6 +50,7 @@ class MotorDrive:
             raise ValueError(f"MotorDrive latency_steps must be an integer >= 0, got {latency_steps!r}")
         self.latency_steps = int(latency_steps)
         self.violations = 0
+        self.clipped_steps = np.zeros(self.torque_limits.shape, dtype=int)
         self._queue: deque = deque()
         self._active = None  # (tau_ff, q_des, v_des) in force
         self._step = 0
@@ -71,6 +73,8 @@ class MotorDrive:
             return np.zeros_like(self.torque_limits)
         tau_ff, q_des, v_des = self._active
         tau = tau_ff + self.kp * (q_des - q_joint) + self.kd * (v_des - v_joint)
-        if np.any(np.abs(tau) > self.torque_limits * (1 + 1e-6)):
+        over = np.abs(tau) > self.torque_limits * (1 + 1e-6)
+        if over.any():
             self.violations += 1
+            self.clipped_steps += over
         return np.clip(tau, -self.torque_limits, self.torque_limits)
