@@ -60,6 +60,9 @@ class OCPSettings:
             equality rows, as in the paper's layout. ``False`` (default) enters it as the parameter it is:
             ``nx`` variables and ``nx`` equality rows fewer, the same optimum, and Fatrop's Riccati
             recursion no longer eliminates them on every iteration (15 % of its search-direction time).
+        torque_limit_fraction: Share (0, 1] of the motors' torque limits the plan may use on its torque
+            nodes (1: the limits themselves, the paper); below 1 the rest is headroom for the low level's
+            feedback on a real or emulated robot, whose drives clip at the limit.
     """
 
     n_nodes: int = 15
@@ -67,6 +70,7 @@ class OCPSettings:
     formulation: str = "inverse_dynamics"
     ee_force_input: bool = False
     initial_state_variables: bool = False
+    torque_limit_fraction: float = 1.0
 
     def __post_init__(self):
         if (
@@ -90,6 +94,13 @@ class OCPSettings:
             )
         if self.formulation not in FORMULATIONS:
             raise ValueError(f"unknown formulation {self.formulation!r}; available: {list(FORMULATIONS)}")
+        fraction = self.torque_limit_fraction
+        if (
+            isinstance(fraction, bool)
+            or not isinstance(fraction, int | float | np.number)
+            or not 0 < fraction <= 1
+        ):
+            raise ValueError(f"OCPSettings.torque_limit_fraction must be in (0, 1], got {fraction!r}")
         for name in ("ee_force_input", "initial_state_variables"):
             value = getattr(self, name)
             if not isinstance(value, bool | np.bool_):
@@ -364,7 +375,7 @@ class OCP:
         if has_input:
             add("dynamics", form.dynamics_constraints(st, data, applied), 0, 0)
             if st.torque_limited:
-                tau_max = robot.joint_torque_limits
+                tau_max = self.settings.torque_limit_fraction * robot.joint_torque_limits
                 # Rows scaled to O(1) slacks (here and below): Fatrop starts every bound multiplier at 1, so a
                 # slack of 100 N m costs extra iterations until s z reaches the barrier parameter.
                 tau = form.torque_expression(st, data, applied)

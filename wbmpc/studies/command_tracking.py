@@ -67,15 +67,18 @@ def run_case(plant: str, command: tuple[float, float, float], trot: float, robot
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import parse_gait_schedule
     from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
-    from wbmpc.studies.hardware_logs import record_emulated_run
+    from wbmpc.studies.hardware_logs import emulated_mpc, record_emulated_run
 
     if plant not in PLANTS:
         raise ValueError(f"unknown plant {plant!r}; available: {list(PLANTS)}")
     vx, vy, wz = command
     gait = f"stand:1,trot@{vx:g}/{vy:g}/{wz:g}:{trot:g}"
     schedule = parse_gait_schedule(gait)
-    mpc = WholeBodyMPC(mpc_robot or robot, OCPSettings(n_nodes=15), MPCConfig(gait=schedule, compiled=True))
-    mpc.verbose = False
+    if plant == "emulated":
+        mpc = emulated_mpc(mpc_robot or robot, schedule)
+    else:
+        mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=schedule, compiled=True))
+        mpc.verbose = False
     start = time.perf_counter()
     if plant == "emulated":
         result, _ = record_emulated_run(gait=gait, robot=robot, mpc=mpc)

@@ -26,6 +26,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m wbmpc.studies.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="b1_z1", help="built-in robot: b1_z1 (default) or b1")
     parser.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="calibration file of the robot (python -m wbmpc.studies.calibrate): the MPC's model and the "
+        "low level's friction feed-forward use it",
+    )
+    parser.add_argument(
         "--gait",
         default="trot",
         help="trot, walk, stand, pace, bound (default trot), or a schedule of gaits and durations [s] "
@@ -139,6 +146,8 @@ def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -
     for flag, value in {"--kp": args.kp, "--kd": args.kd}.items():
         if not 0 <= value < float("inf"):
             parser.error(f"{flag} must be a finite number >= 0, got {value}")
+    if args.calibration is not None and not args.calibration.is_file():
+        parser.error(f"--calibration {args.calibration}: no such file")
     if not abs(args.speed) < float("inf"):
         parser.error(f"--speed must be finite, got {args.speed}")
     try:  # a bad output folder fails now, not after the simulation
@@ -169,9 +178,11 @@ def main(argv: list[str] | None = None) -> dict:
     except ValueError as exc:
         parser.error(f"--gait {args.gait!r}: {exc}")
     try:
-        robot = load(args.robot)
+        robot = load(args.robot, **({"calibration": args.calibration} if args.calibration else {}))
     except ValueError as exc:
-        parser.error(f"--robot {args.robot!r}: {exc}")
+        parser.error(
+            f"--robot {args.robot!r}{f' --calibration {args.calibration}' if args.calibration else ''}: {exc}"
+        )
     print(robot.summary())
     for note in getattr(gait, "notes", ()):
         print(f"gait schedule: {note}")

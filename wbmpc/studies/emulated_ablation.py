@@ -162,17 +162,10 @@ def summarize_records(records: list[dict], t_start: float) -> dict:
 
 def run_variant(name: str, spec: dict, gait: str, robot, calibrated_robot, progress: bool = False) -> dict:
     """One variant on the emulated robot: the run's summary numbers and the solve records' aggregates."""
-    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
-    from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import parse_gait_schedule
-    from wbmpc.studies.hardware_logs import record_emulated_run
+    from wbmpc.studies.hardware_logs import emulated_mpc, record_emulated_run
 
-    mpc = WholeBodyMPC(
-        calibrated_robot if spec["calibrated"] else robot,
-        OCPSettings(n_nodes=15),
-        MPCConfig(gait=parse_gait_schedule(gait), compiled=True),
-    )
-    mpc.verbose = False
+    mpc = emulated_mpc(calibrated_robot if spec["calibrated"] else robot, parse_gait_schedule(gait))
     recorder = SolveRecorder(mpc)
     try:
         result, _ = record_emulated_run(
@@ -198,6 +191,7 @@ def run_variant(name: str, spec: dict, gait: str, robot, calibrated_robot, progr
             for seg in tracking
         ],
         "solves": summarize_records(recorder.records, trot_start),
+        "records": recorder.records,
     }
 
 
@@ -240,10 +234,53 @@ def main(argv: list[str] | None = None) -> dict:
         row["wall_s"] = time.perf_counter() - start
         rows.append(row)
         print(_line(row), flush=True)
-    out = {"gait": gait, "machine": machine_description(), "variants": rows}
+    per_solve = args.output.with_name(args.output.stem + "_solves.csv")
+    write_solve_table(rows, per_solve)
+    for row in rows:
+        row.pop("records")
+    out = {"gait": gait, "machine": machine_description(), "per_solve": per_solve.name, "variants": rows}
     args.output.write_text(json.dumps(out, indent=1))
-    print(f"wrote {args.output}")
+    print(f"wrote {args.output} and {per_solve}")
     return out
+
+
+def write_solve_table(rows: list[dict], path: Path) -> None:
+    """One CSV row per solve of every variant: time, iterations, converged, call time, the most violated
+    row group of the first iterate and its violation, and the torque limits active at the solution."""
+    import csv
+
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(
+            [
+                "variant",
+                "t_s",
+                "iterations",
+                "converged",
+                "call_ms",
+                "worst_first_rows",
+                "worst_first_violation",
+                "worst_first_stage",
+                "active_torque_limits",
+            ]
+        )
+        for row in rows:
+            for r in row["records"]:
+                first = r["first_violation"]
+                worst = max(first, key=first.get) if first else ""
+                writer.writerow(
+                    [
+                        row["variant"],
+                        f"{r['t']:.4f}",
+                        r["iterations"],
+                        int(r["success"]),
+                        f"{r['call_ms']:.2f}",
+                        worst,
+                        f"{first[worst]:.4g}" if worst else "",
+                        r["first_stage"].get(worst, "") if worst else "",
+                        " ".join(r.get("torque_limit_joints", [])),
+                    ]
+                )
 
 
 def _line(row: dict) -> str:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -54,6 +55,12 @@ def run_summary(result, gait: str, wall_s: float) -> dict:
         "iterations_mean": float(iterations.mean()) if iterations.size else None,
         "iterations_p95": float(np.percentile(iterations, 95)) if iterations.size else None,
         "iterations_max": int(iterations.max()) if iterations.size else None,
+        "iterations_max_at_s": float(np.asarray(a["solve_t"])[1:][np.argmax(iterations)])
+        if iterations.size
+        else None,
+        "iterations_over_8_at_s": [
+            float(t) for t, n in zip(np.asarray(a["solve_t"])[1:], iterations, strict=True) if n > 8
+        ],
         "converged_fraction": float(np.mean(fresh)) if fresh.size else 0.0,
         "solve_ms": s["solve_ms"],
         "call_ms_mean": float(np.nanmean(calls[1:])) if len(calls) > 1 else None,
@@ -86,6 +93,12 @@ def record(output: Path = HARDWARE, progress: bool = True) -> dict:
     trot, _ = record_emulated_run(gait=CALIBRATION_RUN, robot=robot, mpc_robot=with_com, progress=progress)
     summary = run_summary(trot, CALIBRATION_RUN, time.perf_counter() - start)
     log = trot.run_log()
+    print(
+        "calibration trial:",
+        json.dumps({k: summary[k] for k in ("fell", "iterations_mean", "iterations_max")}),
+    )
+    if (output / BAG_NAME).exists():  # the recording replaces the previous one
+        shutil.rmtree(output / BAG_NAME)
     bag, _ = write_robot_bag(log, output / BAG_NAME, robot, factor=1, storage="mcap")
     second = calibrate(log, robot)
     path = second.calibration.save(output / "calibration.yaml")
