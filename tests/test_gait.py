@@ -7,12 +7,15 @@ import pytest
 from wbmpc.ocp.gait import (
     FOOT_NAMES,
     Gait,
+    GaitSchedule,
     SwingParams,
     default_force_distribution,
     make_gait,
+    parse_gait_schedule,
     swing_height_profile,
     swing_vertical_velocity,
     symbolic_swing_vertical_velocity,
+    to_ticks,
 )
 
 GAITS = ["trot", "walk", "stand", "pace", "bound"]
@@ -174,3 +177,207 @@ def test_bad_inputs():
         default_force_distribution(np.ones(4, bool), -1.0)
     with pytest.raises(ValueError, match="front_ratio"):
         default_force_distribution(np.ones(4, bool), 10.0, front_ratio=1.5)
+
+
+# --- gaps found by mutation testing (docs/mutation_report.md) ----------------------------------------------
+# Ticks of 0.5 ms; trot period 1600 ticks, FL + RR swing on [0, 800) of each cycle, FR + RL on [800, 1600).
+A, B, ALL = (False, True, True, False), (True, False, False, True), (True,) * 4  # contacts FL, FR, RL, RR
+
+
+def test_to_ticks_rounds_to_whole_integer_ticks():
+    ticks = to_ticks(np.array([0.0, 0.00024, 0.00026, 1.2, -0.0005]))
+    assert ticks.dtype == np.int64
+    np.testing.assert_array_equal(ticks, [0, 0, 1, 2400, -1])
+
+
+def test_a_gait_on_its_own_tick_samples_in_its_ticks():
+    """A 1 ms tick: the trot's 0.8 s period is 800 ticks, so at 0.4 s (tick 400) FR + RL swing; read in
+    0.5 ms ticks (tick 800 of a 800-tick cycle) FL + RR would."""
+    gait = make_gait("trot", 0.8, tick=0.001)
+    assert gait.tick == 0.001
+    np.testing.assert_array_equal(gait.sample(np.array([0.0, 0.3994, 0.4])).contact.T, [A, A, B])
+    schedule = parse_gait_schedule("stand:1,trot:2", tick=0.001)
+    assert schedule.tick == 0.001 and all(g.tick == 0.001 for g in schedule.gaits)
+    np.testing.assert_array_equal(schedule.start_ticks, [0, 1000])
+    np.testing.assert_array_equal(schedule.sample(np.array([0.999, 1.0, 1.4])).contact.T, [ALL, A, B])
+    assert schedule.gait_at(0.999).name == "stand" and schedule.gait_at(1.0).name == "trot"
+
+
+def test_schedule_lookups_at_the_switch_ticks_and_before_the_start():
+    """gait_at, velocity_at, contact, swing_phase and n_contacts at the switches of stand:2,trot@0.3:6,stand
+    (ticks 4000 and 16000): the new segment from its first tick on; before t = 0 the first segment."""
+    schedule = parse_gait_schedule("stand:2,trot@0.3:6,stand:2")
+    for t, name, velocity in (
+        (1.9995, "stand", 0.0),
+        (2.0, "trot", 0.3),
+        (7.9995, "trot", 0.3),
+        (8.0, "stand", 0.0),
+    ):
+        assert schedule.gait_at(t).name == name, t
+        assert schedule.velocity_at(t) == (velocity, 0.0, 0.0), t
+    np.testing.assert_array_equal(schedule.contact(2.0), A)
+    np.testing.assert_array_equal(schedule.contact(2.4), B)
+    np.testing.assert_allclose(schedule.swing_phase(2.2), [0.5, 0.0, 0.0, 0.5])
+    walk_last = parse_gait_schedule("stand:1,trot:1")  # before the start: the first segment, not the last
+    assert walk_last.gait_at(-0.01).name == "stand" and walk_last.contact(-0.01).all()
+    assert walk_last.velocity_at(-0.01) == (0.0, 0.0, 0.0)
+    sample = schedule.sample(np.array([-0.01, 1.0, 2.0, 2.4, 8.0]))
+    np.testing.assert_array_equal(sample.n_contacts, [4, 4, 2, 2, 4])
+    trot = make_gait("trot")
+    for lookup in (
+        schedule.contact,
+        schedule.swing_phase,
+        schedule.gait_at,
+        schedule.velocity_at,
+        trot.contact,
+        trot.swing_phase,
+        trot.velocity_at,
+    ):
+        with pytest.raises(ValueError, match="^t must be finite, got nan$"):
+            lookup(float("nan"))
+
+
+def test_a_schedule_that_starts_with_a_trot_starts_its_cycle_at_tick_0():
+    schedule = parse_gait_schedule("trot:1.2,stand:1")
+    np.testing.assert_array_equal(schedule.sample(np.array([0.0, 0.4, 1.1995])).contact.T, [A, B, A])
+
+
+def test_switch_ticks_of_extended_segments_by_hand():
+    """Where a segment ends (ticks), worked out by hand from the trot's switch ticks (multiples of 800 after
+    the trot's own start):
+    * stand:0.0005 -> 1 tick (a stand never swings: its nominal end);
+    * trot:0.0005 first -> 800 (FL + RR lifted at tick 0 and land at 800: a one-tick-old swing is not cut);
+    * stand:0.3,trot:1 -> the trot starts at 600, nominally ends at 2600 (its tick 2000, mid-swing), so
+      at 3000 (its tick 2400);
+    * stand:2,trot:5.9005 -> nominally 15801 (the trot's tick 11801), extended by 199 ticks to 16000."""
+    cases = {
+        "stand:0.0005,trot:1": [0, 1],
+        "trot:0.0005,stand:1": [0, 800],
+        "stand:0.3,trot:1,stand:1": [0, 600, 3000],
+        "stand:2,trot:5.9005,stand:2": [0, 4000, 16000],
+    }
+    for spec, ticks in cases.items():
+        np.testing.assert_array_equal(parse_gait_schedule(spec).start_ticks, ticks, err_msg=spec)
+    switch = "so that no swing is cut by the switch to"
+    (note,) = parse_gait_schedule("stand:2,trot:5.9005,stand:2").notes
+    assert note == f"trot segment 1 extended by 0.0995 s to t = 8 s {switch} stand"
+    (note,) = parse_gait_schedule("stand:0.3,trot:1,walk:1").notes
+    assert note == f"trot segment 1 extended by 0.2 s to t = 1.5 s {switch} walk"
+
+
+def test_an_extension_stops_after_one_period():
+    """Swings that overlap (swing fraction 0.6: some foot is always mid-swing): the segment is extended by
+    at most one period (1600 ticks), never forever."""
+    overlap = Gait("overlap", 0.8, 0.6, (0.0, 0.5, 0.5, 0.0))
+    assert all(overlap.mid_swing(k) for k in range(0, 1600, 7))
+    schedule = GaitSchedule([(overlap, 0.1), (make_gait("stand"), 1.0)])
+    np.testing.assert_array_equal(schedule.start_ticks, [0, 200 + 1600])
+
+
+def test_a_change_of_speed_continues_the_cycle_over_several_segments():
+    """stand:1 then three trot segments of other speeds: one trot cycle from tick 2000 through all three."""
+    schedule = parse_gait_schedule("stand:1,trot@0.2:1.4,trot@0.5:1,trot@0.3:2")
+    np.testing.assert_array_equal(schedule.cycle_origins, [0, 2000, 2000, 2000])
+    ticks = np.array([4800, 6799, 6800, 7000, 7200])  # (tick - 2000) mod 1600: 1200, 1599, 0, 200, 400
+    np.testing.assert_array_equal(schedule.sample(ticks * 0.0005).contact.T, [B, B, A, A, A])
+
+
+def test_each_new_gait_starts_its_cycle_at_its_own_start():
+    """trot, stand, then two trot segments: the third segment's cycle starts at its own start (4400, after a
+    stand), the fourth continues it. stand:1,trot:1.2,walk:1: the walk starts lifting FL at its start."""
+    schedule = parse_gait_schedule("trot:1,stand:1,trot@0.2:1,trot@0.4:1")
+    np.testing.assert_array_equal(schedule.start_ticks, [0, 2400, 4400, 6400])  # the first trot extended
+    np.testing.assert_array_equal(schedule.cycle_origins, [0, 2400, 4400, 4400])
+    ticks = np.array([4400, 6400, 6800])  # the trot's own ticks 0, 2000 (mod 1600: 400), 2400 (800)
+    np.testing.assert_array_equal(schedule.sample(ticks * 0.0005).contact.T, [A, A, B])
+    walk = parse_gait_schedule("stand:1,trot:1.2,walk:1")
+    np.testing.assert_array_equal(walk.start_ticks, [0, 2000, 4400])
+    np.testing.assert_array_equal(walk.contact(2.2), [False, True, True, True])  # FL lifts at the switch
+
+
+def test_segment_velocities_and_names():
+    schedule = parse_gait_schedule("stand:1,trot@0:2")
+    assert schedule.name == "stand:1+trot@0:2" and schedule.velocity_at(2.0) == (0.0, 0.0, 0.0)
+    trot = make_gait("trot")
+    with pytest.raises(ValueError, match="segment 0 velocity must be 3 finite numbers"):
+        GaitSchedule([(trot, 1.0, 5.0)])
+    with pytest.raises(
+        ValueError, match=r"segment 0 must be \(gait, duration\) or \(gait, duration, velocity\)"
+    ):
+        GaitSchedule([(trot, 1.0, (0.1, 0.0, 0.0), "extra")])
+    with pytest.raises(ValueError, match="gait tick 0.001 s differs from the schedule's 0.0005 s"):
+        GaitSchedule([(make_gait("trot", tick=0.001), 1.0)])
+    with pytest.raises(ValueError, match="tick must be finite and > 0"):
+        GaitSchedule([(trot, 1.0)], tick=0.0)
+
+
+def test_a_lone_gait_name_is_one_segment_that_goes_on():
+    schedule = parse_gait_schedule("trot")
+    assert len(schedule.gaits) == 1 and schedule.duration >= 1e8
+    t = np.array([0.0, 0.4, 1000.0, 1000.4])
+    np.testing.assert_array_equal(schedule.sample(t).contact, make_gait("trot").sample(t).contact)
+
+
+def test_gait_validation_names_the_field():
+    with pytest.raises(ValueError, match="period must be a real number, got 'fast'"):
+        Gait("x", "fast", 0.5, (0.0, 0.5, 0.5, 0.0))
+    with pytest.raises(ValueError, match="tick must be finite and > 0"):
+        Gait("x", 0.8, 0.5, (0.0, 0.5, 0.5, 0.0), tick=0.0)
+    with pytest.raises(ValueError, match="tick must be finite and > 0"):
+        Gait("x", 0.8, 0.5, (0.0, 0.5, 0.5, 0.0), tick=-0.0005)
+    with pytest.raises(ValueError, match="period must be finite and > 0"):
+        Gait("x", -0.8, 0.5, (0.0, 0.5, 0.5, 0.0))
+    with pytest.raises(ValueError, match="swing_fraction must be finite"):
+        Gait("x", 0.8, float("nan"), (0.0, 0.5, 0.5, 0.0))
+    for offsets in ((0.0, 0.5, 0.5, 1.5), (-0.1, 0.5, 0.5, 0.0)):
+        with pytest.raises(ValueError, match="offsets must be 4 phases in"):
+            Gait("x", 0.8, 0.5, offsets)
+    gait = Gait("x", 0.8, 0.5, [0, 0.5, 0.5, 0])  # a list: stored as a tuple of floats (hashable)
+    assert gait.offsets == (0.0, 0.5, 0.5, 0.0) and isinstance(gait.offsets, tuple) and hash(gait)
+    # Off the tick grid: the message gives the tick in ms and the nearest valid period.
+    with pytest.raises(ValueError, match=r"period = 0.8002 s is not a multiple of the schedule tick 0.5 ms"):
+        make_gait("trot", 0.8002)
+    with pytest.raises(ValueError, match=r"use e.g. 0.8 s"):
+        make_gait("trot", 0.8002)
+    with pytest.raises(ValueError, match=r"use e.g. 0.0005 s"):
+        make_gait("trot", 0.0002)
+
+
+def test_swing_validation_bounds_and_names():
+    SwingParams(v_liftoff=2.0, v_touchdown=-2.0)  # the bounds are allowed
+    with pytest.raises(ValueError, match=r"SwingParams.v_liftoff must be in \[0, 2\]"):
+        SwingParams(v_liftoff=2.5)
+    with pytest.raises(ValueError, match=r"SwingParams.v_touchdown must be in \[-2, 0\]"):
+        SwingParams(v_touchdown=-2.5)
+    with pytest.raises(ValueError, match="SwingParams.v_touchdown must be finite"):
+        SwingParams(v_touchdown=float("nan"))
+    for kwargs, message in (
+        ({"T": 0.0}, "T must be finite and > 0"),
+        ({"h": float("nan")}, "h must be finite"),
+        ({"v_lo": float("inf")}, "v_lo must be finite"),
+        ({"v_td": float("nan")}, "v_td must be finite"),
+    ):
+        args = {"T": 0.4, "h": 0.07, "v_lo": 0.1, "v_td": -0.2} | kwargs
+        with pytest.raises(ValueError, match=message):
+            swing_height_profile(0.2, **args)
+    with pytest.raises(ValueError, match=r"phi must be in \[0, 1\]"):
+        swing_height_profile(-0.1, 0.4, 0.07, 0.1, -0.2)
+
+
+def test_force_distribution_edge_cases():
+    w = 10.0 * 9.81
+    only_fl = np.array([True, False, False, False])
+    np.testing.assert_allclose(
+        default_force_distribution(only_fl, 10.0), [w, 0.0, 0.0, 0.0]
+    )  # one front foot
+    only_rr = np.array([False, False, False, True])
+    np.testing.assert_allclose(default_force_distribution(only_rr, 10.0), [0.0, 0.0, 0.0, w])
+    for shape in ((4, 2, 2), (4, 1, 1)):
+        with pytest.raises(ValueError, match="contact must be a bool array"):
+            default_force_distribution(np.ones(shape, bool), 10.0)
+    with pytest.raises(ValueError, match="gravity must be finite and > 0"):
+        default_force_distribution(np.ones(4, bool), 10.0, gravity=-9.81)
+    with pytest.raises(ValueError, match="mass must be finite and > 0"):
+        default_force_distribution(np.ones(4, bool), 0.0)
+    with pytest.raises(ValueError, match="front_ratio must be finite"):
+        default_force_distribution(np.ones(4, bool), 10.0, front_ratio=float("nan"))
