@@ -264,3 +264,17 @@ def test_emulated_robot_with_the_measured_delay_keeps_walking(robot):
     assert not result.fell and s["converged_fraction"] > 0.97
     trot = s["tracking"][-1]
     assert trot["commanded"][0] == 0.2 and trot["achieved"][0] > 0.1  # forward, not backwards
+
+
+def test_cold_start_of_a_robot_without_an_arm_carries_its_weight():
+    """The cold guess of the B1 (no arm) has static forces that carry its weight on the stance feet: it used
+    to ask the statics for an end-effector force the robot has not got, and fell back to zero forces."""
+    from wbmpc.model.robot import load_b1
+
+    b1 = load_b1()
+    mpc = WholeBodyMPC(b1, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand")))
+    q, v = b1.q_nominal, np.zeros(b1.nv)
+    params = mpc.parameters(q, v, 0.0, Commands())
+    forces = mpc.ocp.split(mpc.cold_guess(q, v, params), mpc.ocp.params.pack(params))["F"]
+    vertical = np.asarray(forces).reshape(-1, 4, 3)[:, :, 2].sum(axis=1)
+    np.testing.assert_allclose(vertical, b1.mass * b1.gravity, rtol=1e-6)

@@ -104,3 +104,28 @@ def test_command_ramp_limits_the_acceleration():
     assert w == pytest.approx(0.55)
     with pytest.raises(ValueError, match="CommandRamp.linear"):
         CommandRamp(linear=0.0)
+
+
+def test_torque_limit_fraction_scales_the_torque_rows():
+    """The plan's torque rows are (tau - 0) / (fraction * limit): at the same point, half the fraction gives
+    twice the row values; a fraction outside (0, 1] is refused."""
+    from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+    from wbmpc.model.robot import load_b1
+    from wbmpc.ocp import OCPSettings
+    from wbmpc.ocp.gait import make_gait
+    from wbmpc.ocp.inspection import ConstraintInspector
+
+    robot = load_b1()
+    rows = {}
+    for fraction in (1.0, 0.5):
+        settings = OCPSettings(n_nodes=4, torque_limit_fraction=fraction)
+        mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("stand")))
+        q, v = robot.q_nominal, np.zeros(robot.nv)
+        params = mpc.parameters(q, v, 0.0, Commands())
+        w, p = mpc.cold_guess(q, v, params), mpc.ocp.params.pack(params)
+        inspector = ConstraintInspector(mpc.ocp)
+        rows[fraction] = inspector.evaluate(w, p)[inspector.groups["torque_limits"]]
+    assert np.max(np.abs(rows[1.0])) > 0.05  # the standing torques are not zero
+    np.testing.assert_allclose(rows[0.5], 2.0 * rows[1.0], rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="torque_limit_fraction"):
+        OCPSettings(torque_limit_fraction=1.2)

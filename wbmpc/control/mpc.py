@@ -209,10 +209,11 @@ class WholeBodyMPC:
         """A physically consistent start: hold the measured state, static forces and torques on every node."""
         N, nv = self.n_nodes, self.robot.nv
         contact = params["contact"] > 0.5
+        ee_force = params["ee_force"] if self.robot.has_arm else None  # a robot without an arm has none
         forces, taus = [], []
         for k in range(N - 1):
             try:
-                eq = static_equilibrium(self.robot, q_hat, contact[:, k], ee_force=params["ee_force"])
+                eq = static_equilibrium(self.robot, q_hat, contact[:, k], ee_force=ee_force)
                 f, tau = eq.forces, eq.tau
             except ValueError:  # no stance foot on this node: no static solution, zero forces
                 f, tau = np.zeros((self.robot.n_feet, 3)), np.zeros(self.robot.nj)

@@ -16,7 +16,7 @@ Two ways to use it:
   state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter) and
   the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on Unitree's robots) and
   the computation-delay compensation (:mod:`wbmpc.control.delay`) and acceleration-limited velocity
-  commands (1 m/s^2, 1 rad/s^2, :mod:`wbmpc.control.command_ramp`),
+  commands (0.3 m/s^2, 0.5 rad/s^2, :mod:`wbmpc.control.command_ramp`),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
 What the mismatches do to the MPC (issue 13, ``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
@@ -232,7 +232,7 @@ def hardware_config(profile: HardwareProfile | None = None, **overrides):
         "velocity_cutoff_hz": profile.velocity_cutoff_hz,
         "joint_pd": "drive",
         "delay_compensation": True,
-        "command_ramp": (1.0, 1.0),
+        "command_ramp": (0.3, 0.5),
     }
     return ClosedLoopConfig(**(preset | overrides))
 

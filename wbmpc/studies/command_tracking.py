@@ -1,7 +1,7 @@
 """Base velocity and yaw-rate commands against what the robot does, on every plant.
 
 For each plant (the rigid-contact plant, PyBullet, the emulated robot with its calibrated model) and each
-command (forward 0.2 and 0.5 m/s, left 0.2 m/s, a yaw rate of 0.3 rad/s) the B1 + Z1 stands 1 s, then
+command (forward 0.2 and 0.5 m/s, left 0.2 m/s, a yaw rate of 0.3 rad/s) the B1 + Z1 stands 2 s, then
 trots with the command (the arm held still in the heading frame; compiled Fatrop, N = 15); the achieved
 velocity is the true base velocity in the heading frame averaged over the trot after 1 s of settling
 (:func:`wbmpc.sim.closed_loop.command_tracking`). Run::
@@ -24,6 +24,7 @@ from wbmpc.quick import pick
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUTPUT = REPO_ROOT / "data/results/command_tracking.csv"
+STAND = 2.0  # [s] standing before the trot (the emulated robot settles on its drives and estimator)
 PLANTS = ("rigid", "pybullet", "emulated")
 # name -> (forward [m/s], left [m/s], yaw rate [rad/s])
 COMMANDS = {
@@ -51,7 +52,7 @@ COLUMNS = (
 
 
 def run_case(plant: str, command: tuple[float, float, float], trot: float, robot, mpc_robot=None) -> dict:
-    """One plant and command: stand 1 s, trot ``trot`` s; the tracking row (see the module doc).
+    """One plant and command: stand 2 s, trot ``trot`` s; the tracking row (see the module doc).
 
     Args:
         plant: ``"rigid"``, ``"pybullet"`` or ``"emulated"`` (:func:`wbmpc.sim.hardware.hardware_config`,
@@ -72,7 +73,7 @@ def run_case(plant: str, command: tuple[float, float, float], trot: float, robot
     if plant not in PLANTS:
         raise ValueError(f"unknown plant {plant!r}; available: {list(PLANTS)}")
     vx, vy, wz = command
-    gait = f"stand:1,trot@{vx:g}/{vy:g}/{wz:g}:{trot:g}"
+    gait = f"stand:{STAND:g},trot@{vx:g}/{vy:g}/{wz:g}:{trot:g}"
     schedule = parse_gait_schedule(gait)
     if plant == "emulated":
         mpc = emulated_mpc(mpc_robot or robot, schedule)
