@@ -239,7 +239,7 @@ def test_command_tracking_is_signed_and_per_stretch(robot):
     ids=["forward 0.2", "forward 0.5", "left 0.2", "yaw 0.3"],
 )
 def test_rigid_plant_tracks_signed_commands(robot, command):
-    """Stand 1 s, trot 1.5 s with the command (compiled, N = 15): the achieved component has the command's
+    """Stand 2 s, trot 1.5 s with the command (compiled, N = 15): the achieved component has the command's
     sign and is within 25 % of it over the last half second (loose: a short run; the committed table
     data/results/command_tracking.csv has the 6 s runs), and the other components stay small."""
     from wbmpc.studies.command_tracking import run_case

@@ -76,13 +76,6 @@ def test_the_hold_stands_on_four_feet_when_none_is_scheduled(robot):
     assert np.all(plan.forces[:, :4, 2] > 0.0)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="hold_plan falls back to four feet only when static_equilibrium raises (no stance foot): a "
-    "scheduled stance that leaves the base unbalanced (a trot diagonal at the nominal pose, 3.1 N m) or "
-    "needs a pulling foot (walk with FL up: RR at -12.8 N) is held as is. Library change requested in "
-    "wbmpc/control/mpc.py: fall back to four feet when eq.residual_norm is not ~0 or any F_z < 0.",
-)
 @pytest.mark.parametrize(("gait", "t"), [("trot", 0.0), ("walk", 0.05)], ids=["trot_diagonal", "walk_fl_up"])
 def test_the_hold_stands_on_four_feet_when_the_scheduled_stance_cannot_hold_the_pose(robot, gait, t):
     plan = _failed_first_solve(robot, make_gait(gait, 0.8), t)

@@ -43,6 +43,8 @@ __all__ = [
     "solver_timings",
 ]
 
+# Unbalanced base wrench [N, N m] below which a scheduled stance holds the measured pose statically.
+HOLD_RESIDUAL = 1e-6
 # Precheck findings that make the problem ill-posed: refused before any work (the others ride on the plan).
 REFUSED_FINDINGS = ("ee_force_lifts_robot", "arm_command_without_arm")
 
@@ -353,15 +355,21 @@ class WholeBodyMPC:
         """The safe command while no converged plan exists: hold the measured pose at rest.
 
         Every node is the measured configuration with zero velocity and acceleration; the torques are the
-        static-equilibrium torques of that pose on the scheduled stance feet (all four feet if they
-        cannot hold it), with the commanded end-effector force.
+        static-equilibrium torques of that pose on the scheduled stance feet, or on all four feet when those
+        cannot hold it: no stance foot, a base wrench they leave
+        unbalanced (a trot diagonal), or a foot that would have to pull; with the commanded end-effector
+        force.
         """
         robot, N = self.robot, self.n_nodes
         ee_force = params["ee_force"] if robot.has_arm else None
         stance = params["contact"][:, 0] > 0.5
         try:
             eq = static_equilibrium(robot, q_hat, stance, ee_force=ee_force)
-        except ValueError:
+            # A stance that leaves the base unbalanced (a trot diagonal) or needs a pulling foot cannot hold.
+            holds = eq.residual_norm < HOLD_RESIDUAL and np.all(eq.forces[:, 2] >= 0.0)
+        except ValueError:  # no stance foot
+            holds = False
+        if not holds:
             eq = static_equilibrium(robot, q_hat, np.ones(robot.n_feet, bool), ee_force=ee_force)
         forces = eq.forces if not robot.has_arm else np.vstack([eq.forces, params["ee_force"]])
         report = report or {}
