@@ -278,3 +278,31 @@ def test_cold_start_of_a_robot_without_an_arm_carries_its_weight():
     forces = mpc.ocp.split(mpc.cold_guess(q, v, params), mpc.ocp.params.pack(params))["F"]
     vertical = np.asarray(forces).reshape(-1, 4, 3)[:, :, 2].sum(axis=1)
     np.testing.assert_allclose(vertical, b1.mass * b1.gravity, rtol=1e-6)
+
+
+# --- the studies' command lines refuse bad arguments before any work ------------------------------------
+@pytest.mark.parametrize(
+    "module, argv, words",
+    [
+        ("command_tracking", ["--trot", "0.5"], "--trot must be > 1 s"),
+        ("command_tracking", ["--calibration", "/nonexistent/calib.yaml"], "no such file"),
+        ("emulated_ablation", ["--gait", "trot@fast:2"], "--gait"),
+        ("emulated_ablation", ["--variant", "nonsense"], "invalid choice"),
+        ("emulated_calibrated", ["targets", "--calibration", "/nonexistent/calib.yaml"], "no such file"),
+        ("emulated_calibrated", ["targets", "--gait", "stand:2,trot@x:1"], "--gait"),
+    ],
+)
+def test_study_command_lines_refuse_bad_arguments(module, argv, words, capsys, monkeypatch):
+    import importlib
+
+    import wbmpc.model.robot
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a robot was loaded before the arguments were checked")
+
+    monkeypatch.setattr(wbmpc.model.robot, "load_b1_z1", no_work)
+    study = importlib.import_module(f"wbmpc.studies.{module}")
+    with pytest.raises(SystemExit) as exit_info:
+        study.main(argv)
+    assert exit_info.value.code == 2
+    assert words in capsys.readouterr().err

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from wbmpc.quick import pick
+from wbmpc.studies import cli_checks
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUTPUT = REPO_ROOT / "data/results/command_tracking.csv"
@@ -121,10 +122,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         parser.error(f"--trot must be > 1 s (the first second is left out as settling), got {trot}")
     if args.calibration is not None and not args.calibration.is_file():
         parser.error(f"--calibration {args.calibration}: no such file")
-    try:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        parser.error(f"--output {args.output}: {exc}")
+    cli_checks.writable_file(parser, "--output", args.output, "command_tracking.csv")
     from tqdm.auto import tqdm
 
     from wbmpc.model.robot import load_b1_z1

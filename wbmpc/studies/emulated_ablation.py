@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from wbmpc.quick import pick
+from wbmpc.studies import cli_checks
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUTPUT = REPO_ROOT / "data/hardware/ablation.json"
@@ -213,10 +214,7 @@ def main(argv: list[str] | None = None) -> dict:
         parse_gait_schedule(gait)
     except ValueError as exc:
         parser.error(f"--gait {gait!r}: {exc}")
-    try:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        parser.error(f"--output {args.output}: {exc}")
+    cli_checks.writable_file(parser, "--output", args.output, "ablation.json")
     from tqdm.auto import tqdm
 
     from wbmpc.model.robot import load_b1_z1

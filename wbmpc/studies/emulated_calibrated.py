@@ -7,10 +7,12 @@ hardware profile, estimator, measured computation delay, compiled Fatrop, N = 15
 the heading frame), each recorded as a robot's ROS 2 bag at the 500 Hz command rate:
 
 1. standing on the nominal model (``stand:4``): the base CoM offset and the force split from the leg
-   torques (:func:`wbmpc.studies.calibrate.calibrate`, friction left nominal: nothing swings), written to
+   torques of its bag (:func:`wbmpc.studies.calibrate.calibrate`, friction left nominal: nothing swings),
+   written to
    ``data/hardware/calibration_com.yaml``;
 2. stand 2 s then trot 10 s at 0.2 m/s on that CoM calibration: the committed bag
-   ``data/hardware/emulated_b1_stand_trot`` (notebook 05 reads it), from which the calibration step
+   ``data/hardware/emulated_b1_stand_trot`` (notebook 05 reads it), from which the calibration step (on the
+   bag, as ``python -m wbmpc.studies.calibrate`` would)
    identifies every joint group's friction and armature and the CoM again:
    ``data/hardware/calibration.yaml``.
 
@@ -28,10 +30,13 @@ import argparse
 import json
 import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from wbmpc.studies import cli_checks
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HARDWARE = REPO_ROOT / "data/hardware"
@@ -84,7 +89,9 @@ def record(output: Path = HARDWARE, progress: bool = True) -> dict:
     robot = load_b1_z1()
     written = {}
     stand, _ = record_emulated_run(gait=STAND_ONLY, robot=robot, progress=progress)
-    first = calibrate(stand.run_log(), robot)
+    with tempfile.TemporaryDirectory() as folder:  # the lab calibrates from what the robot recorded: a bag
+        stand_bag, _ = write_robot_bag(stand.run_log(), Path(folder) / "stand", robot, factor=1)
+        first = calibrate(stand_bag, robot)
     com_path = first.calibration.save(output / "calibration_com.yaml")
     written["calibration_com"] = str(com_path.relative_to(REPO_ROOT))
     print(first.table())
@@ -100,7 +107,7 @@ def record(output: Path = HARDWARE, progress: bool = True) -> dict:
     if (output / BAG_NAME).exists():  # the recording replaces the previous one
         shutil.rmtree(output / BAG_NAME)
     bag, _ = write_robot_bag(log, output / BAG_NAME, robot, factor=1, storage="mcap")
-    second = calibrate(log, robot)
+    second = calibrate(bag, robot)
     path = second.calibration.save(output / "calibration.yaml")
     print(second.table())
     written |= {"bag": str(Path(bag).relative_to(REPO_ROOT)), "calibration": str(path.relative_to(REPO_ROOT))}
@@ -184,6 +191,7 @@ def main(argv: list[str] | None = None) -> dict:
         p.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     if args.step == "targets":
+        cli_checks.writable_file(parser, "--output", args.output, "emulated_calibrated.json")
         if not args.calibration.is_file():
             parser.error(f"--calibration {args.calibration}: no such file (run the 'record' step first)")
         from wbmpc.ocp.gait import parse_gait_schedule
@@ -193,7 +201,7 @@ def main(argv: list[str] | None = None) -> dict:
         except ValueError as exc:
             parser.error(f"--gait {args.gait!r}: {exc}")
         return targets(args.calibration, args.output, args.gait, progress=not args.quiet)
-    args.output.mkdir(parents=True, exist_ok=True)
+    cli_checks.writable_folder(parser, "--output", args.output)
     return record(args.output, progress=not args.quiet)
 
 
