@@ -133,14 +133,59 @@ class WholeBodyMPC:
         return geometric_time_steps(self.n_nodes, self.config.dt_min, self.config.dt_max)
 
     def desired_configuration(self, q_hat: np.ndarray, commands: Commands) -> np.ndarray:
-        """Nominal pose at the measured base x, y and heading, level base at the nominal height."""
-        q_des = self.robot.q_nominal
+        """Nominal pose at the measured base x, y and heading, level base at the nominal height, or at the
+        commanded ``base_height`` with the leg joints that keep the feet where the nominal pose has them
+        (:meth:`pose_at_height`)."""
+        q_des = (
+            self.robot.q_nominal
+            if commands.base_height is None
+            else self.pose_at_height(commands.base_height)
+        )
         yaw = heading(q_hat)
         q_des[0:2] = q_hat[0:2]
-        if commands.base_height is not None:
-            q_des[2] = commands.base_height
         q_des[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.0, 0.0, yaw)).coeffs()
         return q_des
+
+    def pose_at_height(self, height: float) -> np.ndarray:
+        """The nominal pose with the base at ``height`` [m] and the leg joints that keep every foot at its
+        nominal position (Gauss-Newton on the feet's positions over the leg joints, within the joint
+        limits; the arm keeps its joints). Cached per height (0.1 mm).
+
+        Without it a height command changes only the base's row of the posture cost while every leg joint
+        is still pulled to its nominal angle, which at another height would lift the feet or push them in:
+        the leg weights win and the base barely moves.
+        """
+        key = round(float(height), 4)
+        cache = self.__dict__.setdefault("_height_poses", {})
+        if key not in cache:
+            robot, model = self.robot, self.robot.model
+            data = model.createData()
+            q = robot.q_nominal
+            ids = [robot.frame_id(f) for f in robot.foot_frames]
+            pin.framesForwardKinematics(model, data, q)
+            targets = np.concatenate([data.oMf[i].translation for i in ids])
+            legs = np.ones(model.nv, bool)
+            legs[:6] = False
+            legs[[robot.joint_index_v(n) for n in robot.arm_joint_names]] = False
+            q[2] = key
+            lower, upper = model.lowerPositionLimit, model.upperPositionLimit
+            for _ in range(30):
+                pin.computeJointJacobians(model, data, q)
+                pin.framesForwardKinematics(model, data, q)
+                error = targets - np.concatenate([data.oMf[i].translation for i in ids])
+                if np.max(np.abs(error)) < 1e-8:
+                    break
+                J = np.vstack(
+                    [pin.getFrameJacobian(model, data, i, pin.LOCAL_WORLD_ALIGNED)[:3] for i in ids]
+                )
+                step = np.zeros(model.nv)
+                step[legs] = np.linalg.lstsq(J[:, legs], error, rcond=None)[0]
+                q = pin.integrate(model, q, step)
+                q[7:] = np.clip(q[7:], lower[7:], upper[7:])
+            cache[key] = q
+        out = cache[key].copy()
+        out[2] = float(height)  # the legs of the nearest 0.1 mm, the base at the height asked for
+        return out
 
     def parameters(self, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands: Commands) -> dict:
         """Numeric values of every OCP parameter block for a solve at time ``t`` [s]."""
