@@ -279,6 +279,11 @@ MODEL_CHANGES = {
         lambda r: _edit_inertia(r, "RL_thigh_joint", scale=1.0 + 1e-6),
         {"model.items.inertias.RL_thigh_joint"},
     ),
+    "lower_position_limit": (
+        load_b1,
+        lambda r: _scale_limit(r, "lowerPositionLimit", "RR_hip_joint", 0.9),
+        {"model.items.limits.RR_hip_joint"},
+    ),
     "tiny_joint_offset": (
         load_b1,
         lambda r: _move_joint(r, "RR_calf_joint", (0.0, 0.0, 1e-7)),
@@ -297,11 +302,75 @@ def test_cache_key_changes_with_the_numeric_model(change):
     assert changed_key != key
     changes = codegen.describe_changes(before, after)
     assert expected <= set(changes), changes  # the record says what changed ...
+    # ... and only that: an item whose digest changed with it would mean items that share numbers.
+    items = {c for c in changes if c.startswith("model.items.")}
+    assert items == {e for e in expected if e.startswith("model.items.")}, changes
     assert all(c.split(".")[0] in {"gravity", "mass", "foot_radius", "model"} for c in changes), changes
     # ... and the same change made again gives the same key (the fingerprint is canonical).
     again = loader()
     edit(again)
     assert codegen.cache_key(OCP(again, SMALL), FLAGS)[0] == changed_key
+
+
+def test_canonical_numbers_and_digests():
+    """The fingerprint's text of a float: 12 significant digits (reloading noise is no change), no negative
+    zero; digests independent of the order a dict was built in; a 16-hex-digit key."""
+    assert codegen._number(-0.0) == codegen._number(0.0) == "0"
+    assert codegen._number(1.0) == "1" and codegen._number(-2.5) == "-2.5"
+    assert codegen._number(0.1 + 0.2) == "0.3" and codegen._number(1.0 + 1e-10) == "1.0000000001"
+    assert codegen._digest({"a": 1, "b": [2.0]}, 16) == codegen._digest({"b": [2.0], "a": 1}, 16)
+    key, description = codegen.cache_key(OCP(load_b1(), SMALL), FLAGS)
+    assert len(key) == 16 and int(key, 16) >= 0
+    assert len(description["model"]["digests"]["joints"]) == 12
+
+
+def _hinge_model(axis=(1.0, 0.0, 0.0), tip=0.5, gravity_angular=(0.0, 0.0, 0.0)):
+    """One unaligned revolute joint with a body, a ``tip`` BODY frame and a ``tip`` OP_FRAME (Pinocchio
+    keeps frames of one name apart by their type)."""
+    model = pin.Model()
+    axis = np.asarray(axis, dtype=float)
+    j = model.addJoint(
+        0, pin.JointModelRevoluteUnaligned(axis / np.linalg.norm(axis)), pin.SE3.Identity(), "hinge"
+    )
+    model.appendBodyToJoint(j, pin.Inertia.FromSphere(1.0, 0.1), pin.SE3.Identity())
+    body = pin.SE3(np.eye(3), np.array([0.0, 0.0, tip]))
+    model.addFrame(pin.Frame("tip", j, body, pin.FrameType.BODY))
+    model.addFrame(pin.Frame("tip", j, pin.SE3(np.eye(3), np.array([0.0, 0.0, 0.7])), pin.FrameType.OP_FRAME))
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -9.81]), np.asarray(gravity_angular, dtype=float))
+    return model
+
+
+def test_the_fingerprint_covers_joint_axes_repeated_frame_names_and_angular_gravity():
+    """Numbers a B1 never exercises: the axis of an unaligned joint, a frame whose name another frame
+    shares, the angular part of the gravity Motion; each changes the fingerprint, the same model does not."""
+    fingerprint = codegen.model_fingerprint
+    base = fingerprint(_hinge_model())
+    assert fingerprint(_hinge_model()) == base
+    assert len(base["frames"]) == 3  # universe and both frames named tip, kept apart
+    for changed in (
+        _hinge_model(axis=(1.0, 0.01, 0.0)),
+        _hinge_model(tip=0.51),
+        _hinge_model(gravity_angular=(0.0, 0.0, 0.1)),
+    ):
+        assert codegen._digest(fingerprint(changed), 16) != codegen._digest(base, 16)
+
+
+def test_the_urdf_text_is_part_of_the_key(tmp_path):
+    """A URDF copy with one comment more: the same numeric model, another file, so another key (the record
+    names the file hash only); a robot whose URDF is gone still has a key."""
+    robots = example_robot_data_dir()
+    urdf = tmp_path / "b1.urdf"
+    urdf.write_text((robots / "b1_description/urdf/b1.urdf").read_text() + "\n<!-- a comment -->\n")
+    srdf = robots / "b1_description/srdf/b1.srdf"
+    copy = load_robot(
+        urdf, srdf, foot_frames=UNITREE_FOOT_FRAMES, reference_pose="standing", name="Unitree B1"
+    )
+    key, before = codegen.cache_key(OCP(load_b1(), SMALL), FLAGS)
+    copy_key, after = codegen.cache_key(OCP(copy, SMALL), FLAGS)
+    assert copy_key != key and codegen.describe_changes(before, after) == ["urdf_sha256"]
+    urdf.unlink()
+    gone_key, gone = codegen.cache_key(OCP(copy, SMALL), FLAGS)
+    assert gone["urdf_sha256"] is None and gone_key not in (key, copy_key)
 
 
 def test_cache_key_changes_with_a_locked_joint_value():
