@@ -295,6 +295,21 @@ def test_each_new_gait_starts_its_cycle_at_its_own_start():
     np.testing.assert_array_equal(walk.contact(2.2), [False, True, True, True])  # FL lifts at the switch
 
 
+def test_segment_velocities_parse_name_and_default():
+    """``trot@vx[/vy[/yaw rate]]``: missing components are zero, the name drops trailing zeros only; a
+    segment without one: a stand stands still, a walking gait takes the run's command (None)."""
+    schedule = parse_gait_schedule("stand:1,trot@0.3/0.1:2,trot@0/0/0.3:2,trot:1")
+    assert schedule.velocities == (None, (0.3, 0.1, 0.0), (0.0, 0.0, 0.3), None)
+    assert schedule.name == "stand:1+trot@0.3/0.1:2+trot@0/0/0.3:2+trot:1"
+    assert schedule.velocity_at(0.5) == (0.0, 0.0, 0.0) and schedule.velocity_at(5.5) is None
+    assert (
+        make_gait("stand").velocity_at(1.0) == (0.0, 0.0, 0.0) and make_gait("trot").velocity_at(1.0) is None
+    )
+    for spec in ("trot@0.1/0.2/0.3/0.4:2", "trot@:2", "trot@fast:2"):
+        with pytest.raises(ValueError, match=r"the velocity after '@' must be vx\[/vy\[/yaw rate\]\]"):
+            parse_gait_schedule(spec)
+
+
 def test_segment_velocities_and_names():
     schedule = parse_gait_schedule("stand:1,trot@0:2")
     assert schedule.name == "stand:1+trot@0:2" and schedule.velocity_at(2.0) == (0.0, 0.0, 0.0)

@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# Mutation testing of one module with the tests that cover it (docs/mutation_report.md).
+#
+#   bash scripts/mutation.sh gait                     # wbmpc/ocp/gait.py, ~4 min on one core
+#   bash scripts/mutation.sh cache_key                # the cache-key functions of wbmpc/solver/codegen.py
+#   bash scripts/mutation.sh gait 'wbmpc.ocp.gait.x_to_ticks*'   # only some mutants (fnmatch on names)
+#
+# mutmut is not part of environment.txt: install the pinned wheel into the venv first,
+#   pip install mutmut==3.8.1   (sha256 of mutmut-3.8.1-py3-none-any.whl: e424d72c0557b6a52a721d9b71e2d18eb9590af746db0bbad50b71e8d4d8ed78)
+# It runs in a throwaway copy of the working tree (tracked and untracked, not ignored files), so the
+# repository, its pyproject.toml and the venv's editable install stay as they are; one process, niced.
+set -euo pipefail
+target="${1:-}"
+shift || true
+repo="$(cd "$(dirname "$0")/.." && pwd)"
+case "$target" in
+  gait)
+    module="wbmpc/ocp/gait.py"
+    tests=(tests/test_gait.py tests/test_contact_schedule.py tests/test_bad_inputs.py tests/test_demo_cli.py)
+    # The closed loops and end-to-end runs cover the gait too but take minutes per mutant (and
+    # tests/test_commands.py is mostly closed loops).
+    select="not closed_loop and not swing_feet_out and not transitions_on_mpc_ticks and not holds_until and not failing_loop and not failed_first_solve and not hold_still and not stand_segment_stands_still and not heading_frame_carries and not world_fixed_hand and not hand_moving and not end_to_end and not no_work_guard"
+    names=()
+    ;;
+  cache_key)
+    module="wbmpc/solver/codegen.py"
+    tests=(tests/test_codegen.py)
+    select="cache_key or same_key or canonical or fingerprint or urdf"
+    names=('wbmpc.solver.codegen.x__number_*' 'wbmpc.solver.codegen.x__rounded_*'
+           'wbmpc.solver.codegen.x__numbers_*' 'wbmpc.solver.codegen.x__placement_*'
+           'wbmpc.solver.codegen.x_model_fingerprint_*' 'wbmpc.solver.codegen.x__digest_*'
+           'wbmpc.solver.codegen.x_cache_key_*')
+    ;;
+  *)
+    echo "usage: bash scripts/mutation.sh gait|cache_key [mutant name patterns...]" >&2
+    exit 2
+    ;;
+esac
+if [[ $# -gt 0 ]]; then names=("$@"); fi
+source "$repo/.venv/bin/activate"
+if ! python -c "import mutmut" 2>/dev/null; then
+  echo "mutmut is not installed: pip install mutmut==3.8.1 (see the top of this script)" >&2
+  exit 2
+fi
+work="$(mktemp -d "${TMPDIR:-/tmp}/wbmpc-mutation-XXXXXX")"
+(cd "$repo" && git ls-files -z -co --exclude-standard | tar --null -T - -cf -) | tar -x -C "$work"
+{
+  echo "[mutmut]"
+  echo "source_paths=wbmpc"
+  echo "only_mutate="
+  echo "    $module"
+  echo "pytest_add_cli_args_test_selection="
+  for t in "${tests[@]}"; do echo "    $t"; done
+  echo "    -k"
+  echo "    $select"
+  echo "pytest_add_cli_args="
+  echo "    -x"
+  echo "    -q"
+  echo "    -p"
+  echo "    no:cacheprovider"
+} > "$work/setup.cfg"
+cd "$work"
+echo "[mutation] $module in $work"
+nice -n 15 mutmut run --max-children 1 "${names[@]}" > mutmut_run.log 2>&1 || { tail -c 3000 mutmut_run.log; exit 1; }
+echo "[mutation] survivors and timeouts (mutmut show NAME in $work for the diff):"
+mutmut results | grep -Ev ": (killed|checked|not checked)$" || true
