@@ -381,6 +381,7 @@ class WholeBodyMPC:
                 w, lam_g, report = w2, lam_g2, report2
             else:
                 report["solve_time"], report["iterations"] = report2["solve_time"], report2["iterations"]
+                report["reason"] = report2["reason"]  # both failures, not the warm one alone
         report["findings"] = findings
         if not report["success"]:
             self.stats["failures"] += 1
