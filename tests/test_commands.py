@@ -306,3 +306,24 @@ def test_study_command_lines_refuse_bad_arguments(module, argv, words, capsys, m
         study.main(argv)
     assert exit_info.value.code == 2
     assert words in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "make, words",
+    [
+        (
+            lambda: ClosedLoopConfig(ee_velocity_frame="base"),
+            "ee_velocity_frame must be 'heading' or 'world'",
+        ),
+        (lambda: ClosedLoopConfig(joint_pd="motor"), "joint_pd must be 'controller' or 'drive'"),
+        (lambda: ClosedLoopConfig(mpc_schedule="asap"), "mpc_schedule must be 'ticks' or 'free'"),
+        (lambda: ClosedLoopConfig(command_ramp=(0.0, 1.0)), "command_ramp"),
+        (lambda: ClosedLoopConfig(command_ramp=(1.0,)), "command_ramp"),
+        (lambda: OCPSettings(torque_limit_fraction=0.0), "torque_limit_fraction"),
+        (lambda: GaitSchedule([(make_gait("trot"), 1.0, (0.1, 0.0, 0.0), "extra")]), "segment 0 must be"),
+    ],
+)
+def test_new_settings_refuse_bad_values(make, words):
+    """Bad values of this issue's new settings are refused at construction, naming the field."""
+    with pytest.raises(ValueError, match=words):
+        make()
