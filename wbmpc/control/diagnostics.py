@@ -36,7 +36,7 @@ from typing import Literal, TextIO
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.model.robot import Robot
+from wbmpc.model.robot import Robot, heading
 from wbmpc.ocp.gait import Gait
 
 Severity = Literal["warning", "error"]
@@ -626,7 +626,7 @@ def ee_world_hold(robot: Robot, q: np.ndarray, commands) -> list[Finding]:
     pin.framesForwardKinematics(info.model, info.data, q)
     shoulder = info.data.oMi[info.arm_reach["joint_id"]].translation
     hand = info.data.oMf[info.ee_id].translation
-    yaw = math.atan2(2.0 * (q[6] * q[5] + q[3] * q[4]), 1.0 - 2.0 * (q[4] ** 2 + q[5] ** 2))
+    yaw = heading(q)
     c, s = math.cos(yaw), math.sin(yaw)
     base_world = np.array([c * base[0] - s * base[1], s * base[0] + c * base[1], 0.0])
     lever = shoulder - np.array([q[0], q[1], shoulder[2]])
