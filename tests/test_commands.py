@@ -251,16 +251,24 @@ def test_rigid_plant_tracks_signed_commands(robot, command):
     assert all(abs(d) < 0.25 * scale + 0.02 for d in row["drift_other_axes"]), row
 
 
-def test_emulated_robot_with_the_measured_delay_keeps_walking(robot):
-    """The emulated robot (full hardware profile, estimator, measured delay of this machine's compiled
-    solves, calibrated base CoM): stand, then trot forward without falling or failing solves."""
+def test_emulated_robot_with_a_real_solve_delay_keeps_walking(robot):
+    """The emulated robot (full hardware profile, estimator, calibrated base CoM) with every plan arriving
+    25 ms after its measurement, compensated: stand, then trot forward without falling or failing solves.
+
+    25 ms is two MPC periods, above the 95th percentile of the whole solve call measured on both CI machine
+    kinds (13 ms on the AMD EPYC, data/hardware/emulated_calibrated.json; 20-23 ms on the Intel Xeon). It is
+    fixed rather than ``"measured"`` so that the outcome is this code's, not the load of the machine running
+    the suite; the measured-delay runs are the study's (``python -m wbmpc.studies.emulated_calibrated``)
+    and the measured-delay wiring is tested with injected solve times (tests/test_sim_harness.py)."""
     from wbmpc.sim.hardware import HardwareProfile
     from wbmpc.studies.hardware_logs import record_emulated_run, shift_base_com
 
     calibrated = shift_base_com(robot, HardwareProfile().base_com_offset)
-    result, _ = record_emulated_run(gait="stand:0.5,trot@0.2:2", robot=robot, mpc_robot=calibrated)
+    result, _ = record_emulated_run(
+        gait="stand:0.5,trot@0.2:2", robot=robot, mpc_robot=calibrated, delay=0.025
+    )
     s = result.summary
-    assert s["delay"] == "measured" and s["joint_pd"] == "drive"
+    assert s["delay"] == 0.025 and s["joint_pd"] == "drive"
     assert not result.fell and s["converged_fraction"] > 0.97
     trot = s["tracking"][-1]
     assert trot["commanded"][0] == 0.2 and trot["achieved"][0] > 0.1  # forward, not backwards

@@ -177,3 +177,54 @@ def test_bad_harness_configuration_is_named():
         Push(0.0, 0.1, (1, 0, 0), target="arm")
     with pytest.raises(ValueError, match="Kick.delta_v"):
         Kick(0.0, (1.0, 0.0))
+
+
+def test_a_fall_between_solves_ends_the_run_on_the_tick_it_happens(robot):
+    """A roll kick tilts the base past ``max_tilt`` while the solver is busy (a 60 ms delay: one solve per
+    five MPC periods): the run ends on the first logged tick beyond the limit, with ``fell`` set, not on a
+    later solve after the base may have come back (the summary's max tilt and ``fell`` agree)."""
+    from wbmpc.sim.closed_loop import tilt
+
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=7), MPCConfig(gait=make_gait("stand")))
+    mpc.verbose = False
+    config = ClosedLoopConfig(
+        duration=0.4,
+        plant="pybullet",
+        kd=5.0,
+        delay=0.06,
+        arm_reference=None,
+        max_tilt=0.05,
+        disturbances=(Kick(0.1, (0, 0, 0, 3.0, 0, 0)),),
+    )
+    result = run_closed_loop(mpc, config, progress=False)
+    tilts = np.array([tilt(q) for q in result.log.q])
+    assert result.fell
+    assert tilts[-1] > config.max_tilt and np.all(tilts[:-1] <= config.max_tilt)
+    assert result.summary["max_tilt_rad"] == pytest.approx(tilts[-1])
+
+
+def test_prepare_builds_every_solver_a_loop_calls():
+    """After ``prepare()`` neither a warm solve nor a failed warm solve's cold retry builds a solver (a build
+    inside the loop is about 30 ms of ``nlpsol`` construction counted as computation delay)."""
+    from wbmpc.model.robot import load_b1
+
+    b1 = load_b1()
+    mpc = WholeBodyMPC(b1, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), max_iter=1))
+    mpc.verbose = False
+    mpc.prepare()
+    assert set(mpc._solvers) == {
+        ("fatrop", True, None),
+        ("fatrop", False, None),
+        ("fatrop", True, mpc.config.retry_max_iter),
+    }
+
+    def no_build(*args, **kwargs):
+        raise AssertionError("a solver was built inside the loop")
+
+    mpc.make_solver = no_build
+    q, v = b1.q_nominal, np.zeros(b1.nv)
+    mpc.solve(q, v, 0.0)
+    v_kicked = v.copy()
+    v_kicked[:3] = (0.5, -0.4, 0.3)  # one iteration cannot converge from here: the warm solve fails, retries
+    plan = mpc.solve(q, v_kicked, 0.0125)
+    assert mpc.stats["cold_retries"] >= 1, plan.status

@@ -597,6 +597,8 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             config.velocity_cutoff_hz,
         )
     ee_id = robot.frame_id(robot.ee_frame) if robot.has_arm else None
+    if hasattr(mpc, "prepare"):
+        mpc.prepare()  # the solvers are built before the clock starts, not inside the first solves
     mpc.reset()
     arm_reference = config.arm_reference
     hold = None  # the heading-frame hold point of an ``ee_velocity`` command: [position, time of it]
@@ -728,9 +730,6 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(iters=plan.iterations, ms=f"{1e3 * plan.solve_time:.0f}")
-            if fallen(state, max_tilt=config.max_tilt):
-                fell = True
-                break
         if solve_now or step - contacts_from >= per_mpc or step == 0:
             # The contact plan of the coming MPC period in one vectorised call, sampled after this tick's
             # solve: the MPC's plan (the gait schedule with any swing aborted after a push), so the rigid
@@ -775,6 +774,11 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             log.ee_reference.append(ee_ref.copy())
             if scene_names:
                 log.scene_positions.append(np.array([plant.body_pose(name)[0] for name in scene_names]))
+            # On every logged tick, not only on solves: a slow solve would otherwise leave a fall (a tilt the
+            # summary's max_tilt_rad shows) unseen until the base happened to recover.
+            if fallen(state, max_tilt=config.max_tilt):
+                fell = True
+                break
         try:
             if step in kicks:
                 state = plant.apply_base_velocity_kick(np.asarray(kicks[step].delta_v, dtype=float))
