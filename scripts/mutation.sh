@@ -13,29 +13,17 @@ set -euo pipefail
 target="${1:-}"
 shift || true
 repo="$(cd "$(dirname "$0")/.." && pwd)"
-case "$target" in
-  gait)
-    module="wbmpc/ocp/gait.py"
-    tests=(tests/test_gait.py tests/test_contact_schedule.py tests/test_bad_inputs.py tests/test_demo_cli.py)
-    # The closed loops and end-to-end runs cover the gait too but take minutes per mutant (and
-    # tests/test_commands.py is mostly closed loops).
-    select="not closed_loop and not swing_feet_out and not transitions_on_mpc_ticks and not holds_until and not failing_loop and not failed_first_solve and not hold_still and not stand_segment_stands_still and not heading_frame_carries and not world_fixed_hand and not hand_moving and not end_to_end and not no_work_guard"
-    names=()
-    ;;
-  cache_key)
-    module="wbmpc/solver/codegen.py"
-    tests=(tests/test_codegen.py)
-    select="cache_key or same_key or canonical or fingerprint or urdf"
-    names=('wbmpc.solver.codegen.x__number_*' 'wbmpc.solver.codegen.x__rounded_*'
-           'wbmpc.solver.codegen.x__numbers_*' 'wbmpc.solver.codegen.x__placement_*'
-           'wbmpc.solver.codegen.x_model_fingerprint_*' 'wbmpc.solver.codegen.x__digest_*'
-           'wbmpc.solver.codegen.x_cache_key_*')
-    ;;
-  *)
-    echo "usage: bash scripts/mutation.sh gait|cache_key [mutant name patterns...]" >&2
+# Each target is a file scripts/mutation/<target>.sh that sets: module (the file to mutate), tests (test files),
+# select (a pytest -k expression) and names (mutant name patterns, empty for all).
+spec="$repo/scripts/mutation/$target.sh"
+if [[ -z "$target" || ! -f "$spec" ]]; then
+    echo "usage: bash scripts/mutation.sh TARGET [mutant name patterns...]; targets:" \
+        "$(cd "$repo/scripts/mutation" && ls ./*.sh | sed 's|^./||; s|\.sh$||' | tr '\n' ' ')" >&2
     exit 2
-    ;;
-esac
+fi
+names=()
+# shellcheck disable=SC1090
+source "$spec"
 if [[ $# -gt 0 ]]; then names=("$@"); fi
 source "$repo/.venv/bin/activate"
 if ! python -c "import mutmut" 2>/dev/null; then
