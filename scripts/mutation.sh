@@ -5,8 +5,8 @@
 #   bash scripts/mutation.sh cache_key                # the cache-key functions of wbmpc/solver/codegen.py
 #   bash scripts/mutation.sh gait 'wbmpc.ocp.gait.x_to_ticks*'   # only some mutants (fnmatch on names)
 #
-# mutmut is not part of environment.txt: install the pinned wheel into the venv first,
-#   pip install mutmut==3.8.1   (sha256 of mutmut-3.8.1-py3-none-any.whl: e424d72c0557b6a52a721d9b71e2d18eb9590af746db0bbad50b71e8d4d8ed78)
+# mutmut is not part of environment.txt: install it and what it adds, pinned and checksummed, first:
+#   pip install --no-deps --require-hashes -r scripts/mutation-requirements.txt
 # It runs in a throwaway copy of the working tree (tracked and untracked, not ignored files), so the
 # repository, its pyproject.toml and the venv's editable install stay as they are; one process, niced.
 set -euo pipefail
@@ -27,7 +27,7 @@ source "$spec"
 if [[ $# -gt 0 ]]; then names=("$@"); fi
 source "$repo/.venv/bin/activate"
 if ! python -c "import mutmut" 2>/dev/null; then
-  echo "mutmut is not installed: pip install mutmut==3.8.1 (see the top of this script)" >&2
+  echo "mutmut is not installed: pip install --no-deps --require-hashes -r scripts/mutation-requirements.txt" >&2
   exit 2
 fi
 work="$(mktemp -d "${TMPDIR:-/tmp}/wbmpc-mutation-XXXXXX")"
