@@ -14,7 +14,9 @@ target="${1:-}"
 shift || true
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 # Each target is a file scripts/mutation/<target>.sh that sets: module (the file to mutate), tests (test files),
-# select (a pytest -k expression) and names (mutant name patterns, empty for all).
+# select (a pytest -k expression) and names (mutant name patterns, empty for all); optionally isolation
+# (mutmut's process_isolation, e.g. forkserver: tests run in children of a process that never ran a test, so
+# caches filled by the clean run, such as functools.cache in a test module, do not hide the mutants).
 spec="$repo/scripts/mutation/$target.sh"
 if [[ -z "$target" || ! -f "$spec" ]]; then
     echo "usage: bash scripts/mutation.sh TARGET [mutant name patterns...]; targets:" \
@@ -22,6 +24,7 @@ if [[ -z "$target" || ! -f "$spec" ]]; then
     exit 2
 fi
 names=()
+isolation=""
 # shellcheck disable=SC1090
 source "$spec"
 if [[ $# -gt 0 ]]; then names=("$@"); fi
@@ -46,6 +49,7 @@ work="$(mktemp -d "${TMPDIR:-/tmp}/wbmpc-mutation-XXXXXX")"
   echo "    -q"
   echo "    -p"
   echo "    no:cacheprovider"
+  if [[ -n "$isolation" ]]; then echo "process_isolation=$isolation"; fi
 } > "$work/setup.cfg"
 cd "$work"
 echo "[mutation] $module in $work"
