@@ -1,5 +1,7 @@
 """The CasADi mirror of Pinocchio (wbmpc.cpin) against numeric Pinocchio at random states."""
 
+import functools
+
 import casadi as ca
 import numpy as np
 import pinocchio as pin
@@ -12,9 +14,16 @@ TOL = 1e-9
 N_STATES = 25
 
 
-@pytest.fixture(scope="module", params=["b1_z1", "b1"])
+@functools.cache
+def load(name):
+    return load_b1_z1() if name == "b1_z1" else load_b1()
+
+
+@pytest.fixture(params=["b1_z1", "b1"])
 def setup(request):
-    robot = load_b1_z1() if request.param == "b1_z1" else load_b1()
+    # The symbolic model is built in each test (not once per module): mutation testing runs only the tests
+    # that call a mutated function, and would otherwise run only the first test for a mutant of it.
+    robot = load(request.param)
     return robot, cpin.SymbolicModel(robot.model)
 
 

@@ -33,34 +33,71 @@ def assert_close(got, expected, rtol=RTOL):
     np.testing.assert_allclose(got, expected, rtol=0, atol=rtol * max(1.0, np.abs(expected).max()))
 
 
-def build(robot):
-    """Every symbolic function of the module, built once per robot (5 or 4 contact frames)."""
-    smodel = cpin.SymbolicModel(robot.model)
-    q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
-    F = ca.SX.sym("F", 3 * len(robot.contact_frames))
-    forces = {name: F[3 * i : 3 * i + 3] for i, name in enumerate(robot.contact_frames)}
-    return SimpleNamespace(
-        smodel=smodel,
-        crba=ca.Function("crba", [q], [crba(smodel, q)]),
-        aba={m: aba_function(smodel, robot.contact_frames, method=m) for m in ("articulated", "crba")},
-        rnea=cpin.rnea_function(smodel, robot.contact_frames),
-        A=ca.Function("A", [q], [centroidal_map(smodel, q)]),
-        dA=ca.Function("dA", [q, v], [centroidal_map_time_variation(smodel, q, v)]),
-        h=ca.Function("h", [q, v], [centroidal_momentum(smodel, q, v)]),
-        hdot=ca.Function("hdot", [q, F], [centroidal_momentum_rate(smodel, q, forces)]),
-        g=ca.Function("g", [q], [generalized_gravity(smodel, q)]),
-        static=ca.Function("static", [q, F], [static_torque_estimate(smodel, q, forces)]),
-        v_b=ca.Function(
-            "v_b",
-            [q, h_sym := ca.SX.sym("h", 6), v[6:]],
-            [cpin.centroidal_base_velocity(smodel, q, h_sym, v[6:])],
-        ),
-        a_b=ca.Function(
-            "a_b",
-            [q, v, a_j := ca.SX.sym("a_j", smodel.nv - 6), F],
-            [cpin.centroidal_base_acceleration(smodel, q, v, a_j, forces)],
-        ),
-    )
+class Functions:
+    """Every symbolic function of the module for one robot, each built on its first use.
+
+    A fresh instance per test (:func:`robot_and_functions`): a function is built inside every test that
+    uses it, so that mutation testing, which runs only the tests that call a mutated function, runs all
+    of them (with functions built once per robot and cached, only the first test would see a mutant).
+    """
+
+    def __init__(self, robot):
+        self.robot = robot
+        self.smodel = cpin.SymbolicModel(robot.model)
+        self.q, self.v = ca.SX.sym("q", self.smodel.nq), ca.SX.sym("v", self.smodel.nv)
+        self.F = ca.SX.sym("F", 3 * len(robot.contact_frames))
+        self.forces = {name: self.F[3 * i : 3 * i + 3] for i, name in enumerate(robot.contact_frames)}
+
+    @functools.cached_property
+    def crba(self):
+        return ca.Function("crba", [self.q], [crba(self.smodel, self.q)])
+
+    @functools.cached_property
+    def aba(self):
+        frames = self.robot.contact_frames
+        return {m: aba_function(self.smodel, frames, method=m) for m in ("articulated", "crba")}
+
+    @functools.cached_property
+    def rnea(self):
+        return cpin.rnea_function(self.smodel, self.robot.contact_frames)
+
+    @functools.cached_property
+    def A(self):
+        return ca.Function("A", [self.q], [centroidal_map(self.smodel, self.q)])
+
+    @functools.cached_property
+    def dA(self):
+        q, v = self.q, self.v
+        return ca.Function("dA", [q, v], [centroidal_map_time_variation(self.smodel, q, v)])
+
+    @functools.cached_property
+    def h(self):
+        return ca.Function("h", [self.q, self.v], [centroidal_momentum(self.smodel, self.q, self.v)])
+
+    @functools.cached_property
+    def hdot(self):
+        q, F = self.q, self.F
+        return ca.Function("hdot", [q, F], [centroidal_momentum_rate(self.smodel, q, self.forces)])
+
+    @functools.cached_property
+    def g(self):
+        return ca.Function("g", [self.q], [generalized_gravity(self.smodel, self.q)])
+
+    @functools.cached_property
+    def static(self):
+        q, F = self.q, self.F
+        return ca.Function("static", [q, F], [static_torque_estimate(self.smodel, q, self.forces)])
+
+    @functools.cached_property
+    def v_b(self):
+        q, v, h = self.q, self.v, ca.SX.sym("h", 6)
+        return ca.Function("v_b", [q, h, v[6:]], [cpin.centroidal_base_velocity(self.smodel, q, h, v[6:])])
+
+    @functools.cached_property
+    def a_b(self):
+        q, v, F, a_j = self.q, self.v, self.F, ca.SX.sym("a_j", self.smodel.nv - 6)
+        a_b = cpin.centroidal_base_acceleration(self.smodel, q, v, a_j, self.forces)
+        return ca.Function("a_b", [q, v, a_j, F], [a_b])
 
 
 def synthetic_robot(seed=0):
@@ -96,9 +133,14 @@ def synthetic_robot(seed=0):
 
 
 @functools.cache
+def load(name):
+    return {"b1_z1": load_b1_z1, "b1": load_b1, "synthetic": synthetic_robot}[name]()
+
+
 def robot_and_functions(name):
-    robot = {"b1_z1": load_b1_z1, "b1": load_b1, "synthetic": synthetic_robot}[name]()
-    return robot, build(robot)
+    """The robot (loaded once) and its functions (:class:`Functions`, built anew in each test)."""
+    robot = load(name)
+    return robot, Functions(robot)
 
 
 @pytest.fixture(params=["b1_z1", "b1", "synthetic"])

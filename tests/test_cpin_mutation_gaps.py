@@ -85,5 +85,6 @@ def test_rnea_refuses_kinematics_without_acceleration():
     smodel = cpin.SymbolicModel(load_b1().model)
     q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
     data = cpin.forward_kinematics(smodel, q, v)
-    with pytest.raises(ValueError, match="rnea needs forward kinematics computed with velocity and acceleration"):
+    message = "rnea needs forward kinematics computed with velocity and acceleration"
+    with pytest.raises(ValueError, match=message):
         cpin.rnea(smodel, q, v, v, data=data)
