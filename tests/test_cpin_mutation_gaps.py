@@ -88,3 +88,98 @@ def test_rnea_refuses_kinematics_without_acceleration():
     message = "rnea needs forward kinematics computed with velocity and acceleration"
     with pytest.raises(ValueError, match=message):
         cpin.rnea(smodel, q, v, v, data=data)
+
+
+def test_centroidal_momentum_refuses_kinematics_without_velocity():
+    smodel = cpin.SymbolicModel(load_b1().model)
+    q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
+    with pytest.raises(ValueError, match=r"centroidal_momentum needs forward_kinematics\(model, q, v\)"):
+        cpin.centroidal_momentum(smodel, q, v, data=cpin.forward_kinematics(smodel, q))
+
+
+def test_functions_take_and_return_the_documented_names():
+    """``rnea_function``: ``(q, v, a, F) -> tau`` and ``aba_function``: ``(q, v, tau, F) -> a``, callable
+    by keyword (as a generated library is): the same values as Pinocchio."""
+    robot = load_b1()
+    model, data = robot.model, robot.model.createData()
+    smodel = cpin.SymbolicModel(model)
+    rng = np.random.default_rng(6)
+    q, v, a = random_state(model, rng)
+    F = rng.normal(scale=100.0, size=3 * len(robot.contact_frames))
+    tau = pin.rnea(model, data, q, v, a, pin_fext(model, data, q, robot.contact_frames, F))
+    out = cpin.rnea_function(smodel, robot.contact_frames, name="inverse")(q=q, v=v, a=a, F=F)
+    assert list(out) == ["tau"]
+    assert_close(np.array(out["tau"]).ravel(), tau)
+    for method in ("articulated", "crba"):
+        f = cpin.aba_function(smodel, robot.contact_frames, method, name="forward")
+        out = f(q=q, v=v, tau=tau, F=F)
+        assert list(out) == ["a"] and f.name() == "forward"
+        assert_close(np.array(out["a"]).ravel(), a, rtol=1e-9 * np.abs(tau).max())
+
+
+@pytest.mark.parametrize("reference", [cpin.LOCAL_WORLD_ALIGNED, cpin.LOCAL, cpin.WORLD])
+def test_frame_kinematics_of_prismatic_unaligned_and_base_frames_match_pinocchio(reference):
+    """Frame placements, velocities and the centre of mass on the synthetic tree (prismatic and unaligned
+    joints, rotated joint placements, a frame on the base joint), which the B1 models do not have."""
+    robot = synthetic_robot(7)
+    model, data = robot.model, robot.model.createData()
+    smodel = cpin.SymbolicModel(model)
+    q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
+    kin = cpin.forward_kinematics(smodel, q, v)
+    outputs = []
+    for name in robot.contact_frames:
+        R, p = cpin.frame_placement(kin, name)
+        outputs += [ca.vec(R), p, cpin.frame_velocity(kin, name, reference).vector()]
+    f = ca.Function("kin", [q, v], [ca.vertcat(*outputs, cpin.center_of_mass(kin))])
+    pin_reference = getattr(pin, reference)
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        q0, v0, _ = random_state(model, rng)
+        pin.forwardKinematics(model, data, q0, v0)
+        pin.updateFramePlacements(model, data)
+        expected = []
+        for name in robot.contact_frames:
+            fid = model.getFrameId(name)
+            M = data.oMf[fid]
+            velocity = pin.getFrameVelocity(model, data, fid, pin_reference).vector
+            expected += [M.rotation.ravel(order="F"), M.translation, velocity]
+        expected.append(pin.centerOfMass(model, data, q0))
+        assert_close(np.array(f(q0, v0)).ravel(), np.concatenate(expected))
+
+
+def _model(*joints, placement=None):
+    """A chain of the given Pinocchio joints, each with a random body."""
+    model = pin.Model()
+    parent = 0
+    for k, joint in enumerate(joints):
+        parent = model.addJoint(parent, joint, placement or pin.SE3.Identity(), f"j{k}")
+        model.appendBodyToJoint(parent, pin.Inertia.Random(), pin.SE3.Identity())
+    return model
+
+
+@pytest.mark.parametrize(
+    ("model", "message"),
+    [
+        (_model(pin.JointModelRX()), "needs a free-flyer root joint"),
+        (_model(pin.JointModelRX(), pin.JointModelFreeFlyer()), "free-flyer joint 'j1' must be the root"),
+        (_model(pin.JointModelFreeFlyer(), placement=pin.SE3.Random()), "'j0' must have an identity joint"),
+        (_model(pin.JointModelFreeFlyer(), pin.JointModelSpherical()), "'j1' has type JointModelSpherical"),
+        (pin.Model(), "needs a free-flyer root joint"),
+    ],
+)
+def test_unsupported_models_are_refused_by_name(model, message):
+    with pytest.raises(ValueError, match=message):
+        cpin.SymbolicModel(model)
+
+
+def test_kinematics_errors_are_named():
+    smodel = cpin.SymbolicModel(load_b1().model)
+    q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
+    with pytest.raises(ValueError, match="forward_kinematics: an acceleration needs a velocity"):
+        cpin.forward_kinematics(smodel, q, None, v)
+    with pytest.raises(ValueError, match=r"frame_velocity needs forward_kinematics\(model, q, v\)"):
+        cpin.frame_velocity(cpin.forward_kinematics(smodel, q), "FL_foot")
+    with pytest.raises(ValueError, match="unknown reference frame 'BODY'; use LOCAL, WORLD or LOCAL_WORLD"):
+        cpin.frame_velocity(cpin.forward_kinematics(smodel, q, v), "FL_foot", "BODY")
+    with pytest.raises(ValueError, match="unknown frame 'no_such_frame' in model"):
+        smodel.frame("no_such_frame")
