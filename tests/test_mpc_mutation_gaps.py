@@ -34,7 +34,7 @@ def _mpc(robot, gait="stand", n_nodes=4, **config):
 
 
 class _Fake:
-    """A ``casadi.nlpsol`` stand-in: raises, or returns a finite unconverged iterate (Fatrop's iteration cap)."""
+    """A ``casadi.nlpsol`` stand-in: raises, or returns a finite unconverged iterate (an iteration cap)."""
 
     def __init__(self, n_constraints, w=None, iterations=7):
         self.w, self.n, self.iterations, self.calls = w, n_constraints, iterations, []
