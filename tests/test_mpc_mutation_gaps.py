@@ -112,7 +112,8 @@ def test_the_shifted_guess_keeps_the_previous_configurations_at_their_times(robo
     previous plan's configuration, velocity and acceleration; node 0 is the measurement."""
     mpc = _mpc(robot, gait="trot", n_nodes=6)
     q, v = robot.q_nominal, np.zeros(robot.nv)
-    first = mpc.solve(q, v, t=0.0, commands=Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0])))
+    t = 0.2  # not 0: the node times of both plans start at t
+    first = mpc.solve(q, v, t=t, commands=Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0])))
     assert first.success
     q_hat = pin.integrate(robot.model, first.q[0], 0.01 * np.arange(robot.nv) / robot.nv)
     v_hat = first.v[0] + 0.1
