@@ -1,8 +1,8 @@
 # shellcheck shell=bash disable=SC2034
 # wbmpc/ocp/builder.py (the OCP builder) with the tests that build small OCPs (3 to 8 nodes) and solve them
 # in process (no compiled solver); not tests/test_bad_inputs.py (it builds OCPs by the dozen and checks no
-# row value). Left out by the -k selection, seconds to minutes per mutant: the closed loops, the IPOPT comparison, the 15-node standing problem of test_mpc (its structure, convergence and
-# physics are checked on 7 nodes by test_formulations), the 8-node node-0 comparison, and the formulations
+# row value). Left out by the -k selection, seconds to minutes per mutant: the closed loops, the IPOPT
+# comparison, the 15-node standing problem of test_mpc (its structure, convergence and physics are checked on 7 nodes by test_formulations), the 8-node node-0 comparison, and the formulations
 # other than inverse_dynamics and centroidal_velocity (which covers the velocity-level branches).
 # All 1274 mutants take hours on one core: docs/mutation/builder_mpc.md runs the functions with the rows,
 # the cost and the applied forces (names: stage_terms, _unit_rows, applied_forces).
