@@ -249,3 +249,44 @@ def test_a_non_unit_quaternion_is_normalised(robot):
     assert a.success and b.success
     np.testing.assert_allclose(b.q, a.q, atol=1e-9)
     np.testing.assert_allclose(b.tau, a.tau, atol=1e-6)
+
+
+def test_prepare_builds_every_solver_a_loop_calls(robot, monkeypatch):
+    """After ``prepare`` a cold start, a warm start and a failed warm start's cold retry build nothing."""
+    mpc = _mpc(robot, max_iter=1, retry_max_iter=1)
+    mpc.prepare()
+    built = []
+    real = mpc.make_solver
+    monkeypatch.setattr(mpc, "make_solver", lambda *args: built.append(args) or real(*args))
+    q = robot.q_nominal
+    assert mpc.solve(q, np.zeros(robot.nv), t=0.0).success  # cold
+    pushed = np.zeros(robot.nv)
+    pushed[[1, 5]] = 0.5  # one warm iteration cannot converge: the cold retry runs
+    second = mpc.solve(q, pushed, t=0.01)
+    assert mpc.stats["cold_retries"] == 1 and not second.success
+    assert built == []
+    mpc.prepare()  # again: nothing new
+    assert built == []
+
+
+def test_the_hold_balances_the_commanded_arm_force(robot, monkeypatch):
+    """A failed first solve under an arm load: the hold's torques and foot forces balance gravity and the
+    commanded end-effector force (numeric Pinocchio)."""
+    mpc = _mpc(robot)
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    load = np.array([8.0, -5.0, -25.0])
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0, commands=Commands(ee_force=load))
+    assert plan.hold
+    model, data = robot.model, robot.model.createData()
+    q = robot.q_nominal
+    g = pin.computeGeneralizedGravity(model, data, q).copy()
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    for k in range(len(plan.tau)):
+        np.testing.assert_allclose(plan.forces[k, -1], load)
+        JtF = sum(
+            pin.getFrameJacobian(model, data, robot.frame_id(f), pin.LOCAL_WORLD_ALIGNED)[:3].T
+            @ plan.forces[k, i]
+            for i, f in enumerate(robot.contact_frames)
+        )
+        np.testing.assert_allclose(g - np.r_[np.zeros(6), plan.tau[k]] - JtF, 0.0, atol=1e-8)
