@@ -290,3 +290,27 @@ def test_the_hold_balances_the_commanded_arm_force(robot, monkeypatch):
             for i, f in enumerate(robot.contact_frames)
         )
         np.testing.assert_allclose(g - np.r_[np.zeros(6), plan.tau[k]] - JtF, 0.0, atol=1e-8)
+
+
+def test_the_paper_layout_warm_starts_too(robot, monkeypatch):
+    """With node 0's state as pinned decision variables the shifted guess is a finite point: the second
+    solve is warm started from it (a NaN in it would silently make every solve a cold start)."""
+    mpc = WholeBodyMPC(
+        robot,
+        OCPSettings(n_nodes=4, initial_state_variables=True),
+        MPCConfig(gait=make_gait("stand"), dt_max=0.03),
+    )
+    mpc.verbose = False
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    assert first.success
+    real, starts = mpc._solver, []
+    monkeypatch.setattr(
+        mpc, "_solver", lambda cold, max_iter=None: starts.append(cold) or real(cold, max_iter)
+    )
+    second = mpc.solve(q, v, t=0.01)
+    assert second.success and starts == [False]
+    guess = mpc.last_inputs["x0"]
+    params = mpc.parameters(q, v, 0.01, Commands())
+    np.testing.assert_allclose(guess, mpc.shifted_guess(first, q, 0.01, params))
+    assert np.all(np.isfinite(guess))
