@@ -210,3 +210,26 @@ def test_plan_function_returns_the_physical_plan(robot, layout):
     np.testing.assert_allclose(
         np.array(ocp.dts_function(0.01, 0.05)).ravel(), geometric_time_steps(N, 0.01, 0.05)
     )
+
+
+def test_a_terminal_node_without_velocity_costs_its_configuration_error(robot):
+    """Centroidal velocity: the terminal node has no velocity, its cost is ``Q_dq (dq - dq_des)^2``."""
+    ocp = OCP(robot, OCPSettings(n_nodes=3, n_tau_nodes=1, formulation="centroidal_velocity"))
+    f = ca.Function("f", [ocp.nlp["x"], ocp.nlp["p"]], [ocp.nlp["f"]])
+    rng = np.random.default_rng(1)
+    values = {
+        name: rng.uniform(0.5, 1.5, rows * cols) for name, (_, (rows, cols)) in ocp.params.blocks.items()
+    }
+    values["q_hat"] = robot.q_nominal
+    p = ocp.params.pack(values)
+    w = 0.1 * rng.standard_normal(ocp.n_variables)
+    last = ocp.stages[-1]
+    dq_offset = last.x_offset + 6  # terminal state [h / m, dq]
+    base = float(f(w, p))
+    for i in (0, 7, robot.nv - 1):
+        step = np.zeros_like(w)
+        step[dq_offset + i] = 0.3
+        x = w[dq_offset + i] - values["dq_des"][i]
+        assert float(f(w + step, p)) - base == pytest.approx(
+            values["Q"][i] * ((x + 0.3) ** 2 - x**2), rel=1e-9
+        )

@@ -110,14 +110,14 @@ def test_the_velocity_command_is_the_world_velocity_in_the_base_frame(robot):
 def test_the_shifted_guess_keeps_the_previous_configurations_at_their_times(robot):
     """Warm start on the same node times from another measured pose: every node after the first keeps the
     previous plan's configuration, velocity and acceleration; node 0 is the measurement."""
-    mpc = _mpc(robot, gait="trot", n_nodes=6)
+    mpc = _mpc(robot, gait="trot", n_nodes=4)  # torques on every stage (n_tau_nodes = N - 1)
     q, v = robot.q_nominal, np.zeros(robot.nv)
     t = 0.2  # not 0: the node times of both plans start at t
     first = mpc.solve(q, v, t=t, commands=Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0])))
     assert first.success
     q_hat = pin.integrate(robot.model, first.q[0], 0.01 * np.arange(robot.nv) / robot.nv)
     v_hat = first.v[0] + 0.1
-    params = mpc.parameters(q_hat, v_hat, first.t, Commands())
+    params = mpc.parameters(q_hat, v_hat, first.t, Commands(ee_force=np.array([3.0, 2.0, -10.0])))
     p = mpc.ocp.params.pack(params)
     split = mpc.ocp.split(mpc.shifted_guess(first, q_hat, first.t, params), p)
     q_guess = np.array([pin.integrate(robot.model, q_hat, d) for d in split["dq"]])
@@ -126,7 +126,8 @@ def test_the_shifted_guess_keeps_the_previous_configurations_at_their_times(robo
     np.testing.assert_allclose(split["v"][0], v_hat, atol=1e-12)
     np.testing.assert_allclose(split["v"][1:], first.v[1:], atol=1e-9)
     np.testing.assert_allclose(split["a"], first.a, atol=1e-9)
-    np.testing.assert_allclose(split["tau"], first.tau[: len(split["tau"])], atol=1e-9)
+    assert len(split["tau"]) == len(first.tau) == mpc.n_nodes - 1
+    np.testing.assert_allclose(split["tau"], first.tau, atol=1e-9)
     # Forces re-initialised to the targets: the weight on the stance feet, the arm command.
     np.testing.assert_allclose(split["F"][:, 2:12:3], params["force_des"].T, atol=1e-12)
     np.testing.assert_allclose(split["F"][:, [0, 1, 3, 4, 6, 7, 9, 10]], 0.0, atol=1e-12)
@@ -293,11 +294,12 @@ def test_the_hold_balances_the_commanded_arm_force(robot, monkeypatch):
 
 
 def test_the_paper_layout_warm_starts_too(robot, monkeypatch):
-    """With node 0's state as pinned decision variables the shifted guess is a finite point: the second
-    solve is warm started from it (a NaN in it would silently make every solve a cold start)."""
+    """The paper's layout (node 0's state and the arm force as pinned decision variables): the shifted guess
+    is a finite point and the second solve is warm started from it (a NaN in it would silently make every
+    solve a cold start)."""
     mpc = WholeBodyMPC(
         robot,
-        OCPSettings(n_nodes=4, initial_state_variables=True),
+        OCPSettings(n_nodes=4, initial_state_variables=True, ee_force_input=True),
         MPCConfig(gait=make_gait("stand"), dt_max=0.03),
     )
     mpc.verbose = False
@@ -314,3 +316,11 @@ def test_the_paper_layout_warm_starts_too(robot, monkeypatch):
     params = mpc.parameters(q, v, 0.01, Commands())
     np.testing.assert_allclose(guess, mpc.shifted_guess(first, q, 0.01, params))
     assert np.all(np.isfinite(guess))
+    # Its node 0 is the measurement (what the initial-state rows pin), and its arm force the command.
+    v_hat = np.full(robot.nv, 0.05)
+    load = np.array([3.0, -2.0, -10.0])
+    params = mpc.parameters(q, v_hat, 0.01, Commands(ee_force=load))
+    split = mpc.ocp.split(mpc.shifted_guess(first, q, 0.01, params))
+    np.testing.assert_array_equal(split["dq"][0], 0.0)
+    np.testing.assert_array_equal(split["v"][0], v_hat)
+    np.testing.assert_array_equal(split["F"][:, 12:], np.tile(load, (mpc.n_nodes - 1, 1)))
