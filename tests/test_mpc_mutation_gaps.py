@@ -276,8 +276,8 @@ def test_the_hold_balances_the_commanded_arm_force(robot, monkeypatch):
     mpc = _mpc(robot)
     monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
     load = np.array([8.0, -5.0, -25.0])
-    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0, commands=Commands(ee_force=load))
-    assert plan.hold
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), commands=Commands(ee_force=load))
+    assert plan.hold and plan.t == 0.0  # t defaults to 0
     model, data = robot.model, robot.model.createData()
     q = robot.q_nominal
     g = pin.computeGeneralizedGravity(model, data, q).copy()
@@ -324,3 +324,20 @@ def test_the_paper_layout_warm_starts_too(robot, monkeypatch):
     np.testing.assert_array_equal(split["dq"][0], 0.0)
     np.testing.assert_array_equal(split["v"][0], v_hat)
     np.testing.assert_array_equal(split["F"][:, 12:], np.tile(load, (mpc.n_nodes - 1, 1)))
+
+
+def test_a_velocity_level_formulation_warm_starts(robot, monkeypatch):
+    """Centroidal velocity (configurations in the state): the second solve starts from the shifted plan."""
+    mpc = WholeBodyMPC(
+        robot,
+        OCPSettings(n_nodes=4, formulation="centroidal_velocity"),
+        MPCConfig(gait=make_gait("stand"), dt_max=0.03),
+    )
+    mpc.verbose = False
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    assert mpc.solve(q, v, t=0.0).success
+    real, starts = mpc._solver, []
+    monkeypatch.setattr(
+        mpc, "_solver", lambda cold, max_iter=None: starts.append(cold) or real(cold, max_iter)
+    )
+    assert mpc.solve(q, v, t=0.01).success and starts == [False]
