@@ -233,3 +233,42 @@ def test_a_terminal_node_without_velocity_costs_its_configuration_error(robot):
         assert float(f(w + step, p)) - base == pytest.approx(
             values["Q"][i] * ((x + 0.3) ** 2 - x**2), rel=1e-9
         )
+
+
+def test_forward_dynamics_transition_uses_the_applied_forces(robot):
+    """Forward dynamics: ``v' - v = dt M^-1 ([0; tau] + J^T (c F) - b)`` with the arm's commanded force."""
+    ocp = OCP(robot, OCPSettings(n_nodes=3, n_tau_nodes=1, formulation="forward_dynamics"))
+    g = ca.Function("g", [ocp.nlp["x"], ocp.nlp["p"]], [ocp.nlp["g"]])
+    rng = np.random.default_rng(2)
+    model, data, nv = robot.model, robot.model.createData(), robot.nv
+    values = {
+        name: rng.uniform(0.5, 1.5, rows * cols) for name, (_, (rows, cols)) in ocp.params.blocks.items()
+    }
+    contact = np.array([1.0, 0.0, 1.0, 1.0])
+    values |= {"q_hat": robot.q_nominal, "dt_min": 0.01, "dt_max": 0.05}
+    values["contact"] = np.tile(contact[:, None], (1, 2))  # 3 nodes: 2 stages
+    p = ocp.params.pack(values)
+    w = 0.1 * rng.standard_normal(ocp.n_variables)
+    s1 = ocp.stages[1]  # stage 1: [dq, v] then [tau, F]
+    w[s1.u_offset + robot.nj : s1.u_offset + s1.nu] = 50.0 * rng.standard_normal(s1.nu - robot.nj)
+    dq, v = w[s1.x_offset : s1.x_offset + nv], w[s1.x_offset + nv : s1.x_offset + 2 * nv]
+    tau, F = (
+        w[s1.u_offset : s1.u_offset + robot.nj],
+        w[s1.u_offset + robot.nj : s1.u_offset + s1.nu].reshape(4, 3),
+    )
+    x_next = w[ocp.stages[2].x_offset : ocp.stages[2].x_offset + 2 * nv]
+    q = pin.integrate(model, robot.q_nominal, dq)
+    applied = [contact[i] * F[i] for i in range(4)] + [values["ee_force"]]
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    JtF = sum(
+        pin.getFrameJacobian(model, data, robot.frame_id(f), LWA)[:3].T @ applied[i]
+        for i, f in enumerate(robot.contact_frames)
+    )
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    b = pin.rnea(model, data, q, v, np.zeros(nv))
+    a = np.linalg.solve(M, np.r_[np.zeros(6), tau] + JtF - b)
+    dt = geometric_time_steps(3, 0.01, 0.05)[1]
+    rows = np.asarray(g(w, p)).ravel()[s1.rows["transition"]]
+    np.testing.assert_allclose(rows, x_next - np.r_[dq + v * dt, v + a * dt], rtol=1e-8, atol=1e-8)
