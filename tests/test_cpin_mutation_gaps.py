@@ -123,6 +123,9 @@ def test_frame_kinematics_of_prismatic_unaligned_and_base_frames_match_pinocchio
     joints, rotated joint placements, a frame on the base joint), which the B1 models do not have."""
     robot = synthetic_robot(7)
     model, data = robot.model, robot.model.createData()
+    # A massless body (a sensor link) before the others and a body of exactly 1 kg, both in the CoM.
+    model.inertias[2] = pin.Inertia.Zero()
+    model.inertias[4] = pin.Inertia(1.0, np.array([0.1, -0.2, 0.05]), np.diag([0.01, 0.02, 0.03]))
     smodel = cpin.SymbolicModel(model)
     q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
     kin = cpin.forward_kinematics(smodel, q, v)
@@ -183,3 +186,45 @@ def test_kinematics_errors_are_named():
         cpin.frame_velocity(cpin.forward_kinematics(smodel, q, v), "FL_foot", "BODY")
     with pytest.raises(ValueError, match="unknown frame 'no_such_frame' in model"):
         smodel.frame("no_such_frame")
+
+
+def test_momentum_rate_under_another_gravity():
+    """Gravity acts at the centre of mass: changing it (numpy or SX, e.g. a tilted or lunar one) changes
+    the linear rate by m (g' - g) and the moment about the centre of mass not at all."""
+    robot = load_b1()
+    smodel = cpin.SymbolicModel(robot.model)
+    q, F = ca.SX.sym("q", smodel.nq), ca.SX.sym("F", 3 * len(robot.contact_frames))
+    forces = {name: F[3 * i : 3 * i + 3] for i, name in enumerate(robot.contact_frames)}
+    g_other = np.array([0.3, -0.2, -1.62])
+    rate = ca.Function("rate", [q, F], [cpin.centroidal_momentum_rate(smodel, q, forces)])
+    g_sym = ca.SX.sym("g", 3)
+    other = ca.Function("other", [q, F, g_sym], [cpin.centroidal_momentum_rate(smodel, q, forces, g_sym)])
+    other_np = ca.Function("other_np", [q, F], [cpin.centroidal_momentum_rate(smodel, q, forces, g_other)])
+    mass = pin.computeTotalMass(robot.model)
+    rng = np.random.default_rng(9)
+    for _ in range(5):
+        q0, _, _ = random_state(robot.model, rng)
+        F0 = rng.normal(scale=100.0, size=F.numel())
+        shift = np.concatenate([mass * (g_other - robot.model.gravity.linear), np.zeros(3)])
+        expected = np.array(rate(q0, F0)).ravel() + shift
+        assert_close(np.array(other(q0, F0, g_other)).ravel(), expected)
+        assert_close(np.array(other_np(q0, F0)).ravel(), expected)
+
+
+def test_clean_constant_snaps_rounding_noise_to_exact_zeros_and_ones():
+    """Rounding noise of a placement (cos(pi/2) = 6e-17, 1 - 1e-16) becomes exact 0 and +-1, so that CasADi
+    drops the operations; other values, and 0/+-1 more than the tolerance away, are kept."""
+    noisy = np.array([[6e-17, 1 - 1e-16, -1 + 1e-13], [-3e-13, 1 + 2e-13, -1 - 5e-13], [0.5, 2.0, -2.0]])
+    cleaned = np.array(ca.DM(spatial.clean_constant(noisy)))
+    np.testing.assert_array_equal(cleaned, [[0.0, 1.0, -1.0], [0.0, 1.0, -1.0], [0.5, 2.0, -2.0]])
+    kept = np.array([1e-11, 1 - 1e-11, -1 + 1e-11, 2 + 1e-13])
+    np.testing.assert_array_equal(np.array(ca.DM(spatial.clean_constant(kept))).ravel(), kept)
+    # Exact zeros and ones are no operations: R x with a cleaned rotation has fewer instructions.
+    c, s = np.cos(np.pi / 2), np.sin(np.pi / 2)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    x = ca.SX.sym("x", 3)
+    count = {
+        k: ca.Function("Rx", [x], [ca.mtimes(M, x)]).n_instructions()
+        for k, M in [("raw", ca.SX(ca.DM(R))), ("clean", spatial.clean_constant(R))]
+    }
+    assert count["clean"] < count["raw"]
