@@ -243,6 +243,7 @@ def test_a_non_unit_quaternion_is_normalised(robot):
     mpc = _mpc(robot)
     q = robot.q_nominal.copy()
     q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.05, -0.04, 0.3)).coeffs()  # every component non-zero
+    q[7] = 0.1  # the joint after the quaternion is not zero either
     scaled = q.copy()
     scaled[3:7] *= 3.0
     a = mpc.solve(q, np.zeros(robot.nv), t=0.0)
