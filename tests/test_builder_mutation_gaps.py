@@ -56,8 +56,7 @@ def _random_point(robot, ocp, seed):
         "Q": rng.uniform(0.5, 2.0, 2 * nv),
         "R": rng.uniform(0.5, 2.0, ocp.n_weights_input),
     }
-    if ocp.settings.ee_force_input:  # the arm force variable is pinned to the command: not a free value
-        forces[:, -1] = values["ee_force"]
+    # The paper layout's arm force variable is not at its command here: the rows must use the variable.
     w = ocp.join(q_hat, dq, v, a, forces, tau)
     return dict(dq=dq, v=v, a=a, forces=forces, tau=tau, values=values, w=w, p=ocp.params.pack(values))
 
