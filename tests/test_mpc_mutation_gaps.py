@@ -249,6 +249,10 @@ def test_a_non_unit_quaternion_is_normalised(robot):
     a = mpc.solve(q, np.zeros(robot.nv), t=0.0)
     mpc.reset()
     b = mpc.solve(scaled, np.zeros(robot.nv), t=0.0)
+    # The OCP gets a unit quaternion (its symbolic integrate assumes one).
+    q_ocp = mpc.ocp.params.unpack(mpc.last_inputs["p"], "q_hat")
+    assert np.linalg.norm(q_ocp[3:7]) == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(q_ocp[3:7], q[3:7], atol=1e-12)
     assert a.success and b.success
     np.testing.assert_allclose(b.q, a.q, atol=1e-9)
     np.testing.assert_allclose(b.tau, a.tau, atol=1e-6)
