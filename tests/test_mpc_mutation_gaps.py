@@ -347,3 +347,16 @@ def test_a_velocity_level_formulation_warm_starts(robot, monkeypatch):
         mpc, "_solver", lambda cold, max_iter=None: starts.append(cold) or real(cold, max_iter)
     )
     assert mpc.solve(q, v, t=0.01).success and starts == [False]
+
+
+def test_a_robot_without_an_arm_holds_too(monkeypatch):
+    """A failed first solve of the B1 without an arm: the static hold on its feet (no arm force anywhere)."""
+    from wbmpc.model.robot import load_b1
+
+    b1 = load_b1()
+    mpc = WholeBodyMPC(b1, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))
+    mpc.verbose = False
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    plan = mpc.solve(b1.q_nominal, np.zeros(b1.nv), t=0.0)
+    assert plan.hold and plan.forces.shape[1] == 4
+    assert plan.forces[0, :, 2].sum() == pytest.approx(b1.mass * b1.gravity)
