@@ -5,13 +5,14 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.estimation.filters import LowPassFilter
 from wbmpc.io.logs import RunLog, load_log, save_log
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 from wbmpc.sim.disturbances import Kick, Push
-from wbmpc.sim.sensing import LowPassFilter, SensorNoise, StateSensor
+from wbmpc.sim.sensing import SensorNoise, StateSensor
 
 
 @pytest.fixture(scope="module")

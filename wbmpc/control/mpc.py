@@ -20,16 +20,16 @@ from wbmpc import checks
 from wbmpc.control.config import DT_BOUNDS, SOLVERS, Commands, MPCConfig, MPCSolution, default_weights
 from wbmpc.control.diagnostics import exception_status, run_prechecks, solver_status
 from wbmpc.control.push_recovery import PushRecovery
-from wbmpc.model.robot import Robot, heading
-from wbmpc.model.statics import static_equilibrium
+from wbmpc.model.robot import FOOT_NAMES, Robot, heading
+from wbmpc.model.statics import default_force_distribution, static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import (
-    FOOT_NAMES,
     GaitSchedule,
-    default_force_distribution,
     swing_vertical_velocity,
 )
 from wbmpc.ocp.time_grid import geometric_time_steps, interp_rows, node_times
+from wbmpc.solver import codegen
+from wbmpc.solver.nlpsol import make_nlpsol, solver_options
 
 __all__ = [
     "DT_BOUNDS",
@@ -106,40 +106,31 @@ class WholeBodyMPC:
         self._solver(False)
         self._solver(True, self.config.retry_max_iter)
 
-    def make_solver(self, name: str, cold: bool, max_iter: int | None = None) -> ca.Function:
-        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config
-        (``max_iter`` overrides the config's iteration cap)."""
+    def solver_options(self, cold: bool, max_iter: int | None = None) -> dict:
+        """The ``casadi.nlpsol`` options of this MPC's cold- or warm-start solves
+        (:func:`wbmpc.solver.nlpsol.solver_options`; ``max_iter`` overrides the config's iteration cap)."""
         cfg = self.config
         if max_iter is None:
             max_iter = cfg.cold_max_iter if cold else cfg.max_iter
-        mu_init = cfg.mu_init_cold if cold else cfg.mu_init_warm
-        if cfg.solver == "fatrop":
-            inner = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init}
-            if not cold:
-                # The casadi 3.8.2 Fatrop plugin accepts bound_push but not the warm_start_* options.
-                inner["bound_push"] = 1e-7
-            opts = {
-                "structure_detection": "auto",
-                "equality": self.ocp.equality,
-                "print_time": False,
-                "fatrop": inner,
-            }
-        else:
-            ipopt = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init, "sb": "yes"}
-            if not cold:
-                ipopt |= {
-                    "warm_start_init_point": "yes",
-                    "warm_start_bound_push": 1e-7,
-                    "warm_start_mult_bound_push": 1e-7,
-                }
-            opts = {"print_time": False, "ipopt": ipopt}
-        if cfg.compiled:
-            from wbmpc.solver import codegen
+        return solver_options(
+            cfg.solver,
+            tol=cfg.tol,
+            max_iter=max_iter,
+            mu_init=cfg.mu_init_cold if cold else cfg.mu_init_warm,
+            warm=not cold,
+            equality=self.ocp.equality,
+        )
 
+    def make_solver(self, name: str, cold: bool, max_iter: int | None = None) -> ca.Function:
+        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config
+        (``max_iter`` overrides the config's iteration cap); compiled (cached) with ``config.compiled``."""
+        cfg = self.config
+        library = None
+        if cfg.compiled:
             if self.compiled_nlp is None:
                 self.compiled_nlp = codegen.build(self.ocp, tuple(cfg.compile_flags), progress=self.verbose)
-            return ca.nlpsol(name, cfg.solver, str(self.compiled_nlp.library), opts)
-        return ca.nlpsol(name, cfg.solver, self.ocp.nlp, {**opts, "expand": True})
+            library = self.compiled_nlp.library
+        return make_nlpsol(name, cfg.solver, self.ocp.nlp, self.solver_options(cold, max_iter), library)
 
     # --- parameters -----------------------------------------------------------------------------------------
     def time_steps(self) -> np.ndarray:

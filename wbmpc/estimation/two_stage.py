@@ -62,8 +62,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.estimation.filters import LowPassFilter
 from wbmpc.model.robot import Robot
-from wbmpc.sim.sensing import LowPassFilter
 
 __all__ = [
     "EstimatorNoise",

@@ -124,7 +124,7 @@ class ClosedLoopConfig:
             ``q_meas``, ``v_meas`` what the controller saw.
         hardware: The emulated robot's mismatches (:class:`wbmpc.sim.hardware.HardwareProfile`; PyBullet
             plant only): motor friction, armature, base centre-of-mass offset, torque latency, sensor errors
-            of the estimator. ``None``: the nominal robot. :func:`wbmpc.sim.hardware.hardware_config` also
+            of the estimator. ``None``: the nominal robot. :func:`wbmpc.sim.presets.hardware_config` also
             sets the profile's controller settings.
     """
 

@@ -12,10 +12,11 @@ Two ways to use it:
 * ``ClosedLoopConfig(plant="pybullet", hardware=profile, state="estimated")`` applies the robot side of a
   profile: the plant's friction, armature, centre-of-mass offset and latency, and the IMU and encoder
   errors the estimator reads (``state="estimated"``); every controller setting stays the config's own.
-* :func:`hardware_config` is the preset: the same plus the controller settings of the profile (estimated
-  state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter) and
-  the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on Unitree's robots) and
-  the computation-delay compensation (:mod:`wbmpc.control.delay`) and acceleration-limited velocity
+* :func:`wbmpc.sim.presets.hardware_config` is the preset: the same plus the controller settings of the
+  profile (estimated state, measured computation delay, the hardware low-level gains, the 50 Hz
+  joint-velocity filter), the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on
+  Unitree's robots), the computation-delay compensation (:mod:`wbmpc.control.delay`) and
+  acceleration-limited velocity
   commands (0.3 m/s^2, 0.5 rad/s^2, :mod:`wbmpc.control.command_ramp`),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
@@ -62,7 +63,6 @@ __all__ = [
     "PlannedContacts",
     "HardwareProfile",
     "estimate_errors",
-    "hardware_config",
     "rear_leg_share",
 ]
 
@@ -205,36 +205,6 @@ class HardwareProfile:
         out["imu"] = None if self.imu is None else asdict(self.imu)
         out["estimator"] = None if self.estimator is None else asdict(self.estimator)
         return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
-
-
-def hardware_config(profile: HardwareProfile | None = None, **overrides):
-    """The "hardware" preset: a PyBullet closed loop on the emulated robot with the profile's controller.
-
-    Args:
-        profile: The emulated robot (default: :class:`HardwareProfile` with its documented values).
-        **overrides: Any other :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig` field (duration, gait, ...),
-            including the preset's own (``kp``, ``kd``, ``arm_gains``, ``delay``, ``state``, ...).
-
-    Returns:
-        A :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig`.
-    """
-    from wbmpc.sim.closed_loop import ClosedLoopConfig
-
-    profile = profile or HardwareProfile()
-    preset = {
-        "plant": "pybullet",
-        "hardware": profile,
-        "state": profile.state,
-        "delay": profile.delay,
-        "kp": profile.leg_gains[0],
-        "kd": profile.leg_gains[1],
-        "arm_gains": tuple(profile.arm_gains),
-        "velocity_cutoff_hz": profile.velocity_cutoff_hz,
-        "joint_pd": "drive",
-        "delay_compensation": True,
-        "command_ramp": (0.3, 0.5),
-    }
-    return ClosedLoopConfig(**(preset | overrides))
 
 
 class PlannedContacts:

@@ -622,7 +622,7 @@ def record_emulated_run(
     mpc=None,
     **overrides,
 ):
-    """A run of the MPC on the emulated robot (:func:`wbmpc.sim.hardware.hardware_config`): stand, then trot.
+    """A run of the MPC on the emulated robot (:func:`wbmpc.sim.presets.hardware_config`): stand, then trot.
 
     The computation delay is the measured one (each whole solve call's wall time on this machine) unless
     ``delay`` is overridden; the arm holds still in the heading frame (``arm_reference=None`` with
@@ -650,7 +650,7 @@ def record_emulated_run(
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.ocp.gait import parse_gait_schedule
     from wbmpc.sim.closed_loop import run_closed_loop
-    from wbmpc.sim.hardware import hardware_config
+    from wbmpc.sim.presets import hardware_config
 
     robot = robot or load_b1_z1()
     spec = gait or (f"stand:{stand:g},trot@{speed:g}:{trot:g}" if trot > 0 else "stand")
