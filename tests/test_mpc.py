@@ -7,10 +7,11 @@ import pytest
 from conftest import forward_progress
 
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.model.quaternion import tilt
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import make_gait
-from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop, tilt
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
 TOL = 1e-3  # the solver tolerance (paper)
 

@@ -338,8 +338,8 @@ class WholeBodyMPC:
         t = checks.number("t", t, unit="s")
         if commands is not None and not isinstance(commands, Commands):
             raise ValueError(f"commands must be a Commands (wbmpc.control.mpc) or None, got {commands!r}")
-        q_hat = _checked("q_hat", q_hat, self.robot.nq)
-        v_hat = _checked("v_hat", v_hat, self.robot.nv)
+        q_hat = checks.array("q_hat", q_hat, self.robot.nq)
+        v_hat = checks.array("v_hat", v_hat, self.robot.nv)
         q_hat = q_hat.copy()
         norm = np.linalg.norm(q_hat[3:7])
         if norm < 1e-6:
@@ -548,12 +548,3 @@ def solver_timings(stats: dict, wall: float) -> dict:
         out["search_direction"] = float(fatrop.get("compute_sd_time", 0.0))
         out["initialization"] = float(fatrop.get("initialization_time", 0.0))
     return out
-
-
-def _checked(name: str, value, size: int) -> np.ndarray:
-    value = np.asarray(value, dtype=float)
-    if value.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got {value.shape}")
-    if not np.all(np.isfinite(value)):
-        raise ValueError(f"{name} contains NaN or inf")
-    return value

@@ -140,18 +140,18 @@ def static_equilibrium(
             an end-effector force on a robot without an arm, or ``weight`` outside (0, 1).
     """
     model = robot.model
-    q = _finite_array("q", q, (model.nq,))
+    q = checks.array("q", q, (model.nq,))
     if abs(np.linalg.norm(q[3:7]) - 1.0) > 1e-6:
         norm = np.linalg.norm(q[3:7])
         raise ValueError(f"q: base quaternion q[3:7] must have unit norm, got norm {norm:.6g}")
     contact = _contact_flags(contact, robot.n_feet)
     if ee_force is not None and not robot.has_arm:
         raise ValueError(f"ee_force: robot {robot.name!r} has no end effector")
-    F_e = np.zeros(3) if ee_force is None else _finite_array("ee_force", ee_force, (3,))
+    F_e = np.zeros(3) if ee_force is None else checks.array("ee_force", ee_force, (3,))
     if reference_forces is None:
         reference = _default_reference(robot, contact)
     else:
-        reference = _finite_array("reference_forces", reference_forces, (robot.n_feet, 3))
+        reference = checks.array("reference_forces", reference_forces, (robot.n_feet, 3))
     if not 0.0 < float(weight) < 1.0:
         raise ValueError(f"weight must be in (0, 1), got {weight}")
 
@@ -218,18 +218,6 @@ def check_friction(forces, mu: float, tol: float = 1e-9) -> np.ndarray:
 def _linear_jacobian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray:
     """Rows (3, nv) of the LOCAL_WORLD_ALIGNED frame Jacobian: world-frame velocity of the frame origin."""
     return pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3].copy()
-
-
-def _finite_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
-    try:
-        array = np.array(value, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be a numeric array of shape {shape}") from err
-    if array.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite (no NaN or inf)")
-    return array
 
 
 def _contact_flags(contact, n_feet: int) -> np.ndarray:

@@ -41,6 +41,7 @@ from wbmpc.control.diagnostics import FailureReporter
 from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCSolution, WholeBodyMPC
 from wbmpc.io.logs import LogWriter, RunLog, load_log, save_log
+from wbmpc.model.quaternion import tilt
 from wbmpc.ocp.gait import Gait, GaitSchedule
 from wbmpc.ocp.time_grid import node_times
 from wbmpc.sim.disturbances import Disturbance, Kick, Push
@@ -898,12 +899,6 @@ def _progress(total: int, enabled: bool):
     return tqdm(total=total, desc="MPC", unit="solve")
 
 
-def tilt(q: np.ndarray) -> float:
-    """Angle [rad] between the base z axis and the world z axis (roll/pitch combined)."""
-    qx, qy = q[3], q[4]
-    return float(np.arccos(np.clip(1 - 2 * (qx**2 + qy**2), -1.0, 1.0)))
-
-
 def machine_description() -> str:
     """CPU model and core count, for benchmark records."""
     cpu = platform.processor() or platform.machine()
@@ -982,7 +977,7 @@ def summarize(
         },
         "ee_rms_m": float(np.sqrt(np.mean(ee_err**2))) if ee_err.size else None,
         "ee_max_error_m": float(np.max(ee_err)) if ee_err.size else None,
-        "max_tilt_rad": float(max(tilt(qi) for qi in q)) if len(q) else None,
+        "max_tilt_rad": float(np.max(tilt(np.asarray(q)))) if len(q) else None,
         "base_height_range_m": [float(q[:, 2].min()), float(q[:, 2].max())] if len(q) else None,
         "distance_travelled_m": float(np.linalg.norm(q[-1, :2] - q[0, :2])) if len(q) else None,
         "torque_violations": int(torque_violations),

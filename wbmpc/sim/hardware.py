@@ -57,6 +57,7 @@ from wbmpc.estimation import (
     contact_trust,
     synthesize_imu,
 )
+from wbmpc.model.quaternion import base_z_axis
 
 __all__ = [
     "EstimatedState",
@@ -288,8 +289,8 @@ def estimate_errors(q: np.ndarray, v: np.ndarray, q_hat: np.ndarray, v_hat: np.n
     """
     dz = q_hat[:, 2] - q[:, 2]
     dv = np.linalg.norm(v_hat[:, :3] - v[:, :3], axis=1)
-    z_true = _base_z(q)
-    z_hat = _base_z(q_hat)
+    z_true = base_z_axis(q)
+    z_hat = base_z_axis(q_hat)
     tilt = np.arccos(np.clip(np.sum(z_true * z_hat, axis=1), -1.0, 1.0))
     return {
         "height_max_m": float(np.max(np.abs(dz))),
@@ -306,9 +307,3 @@ def rear_leg_share(foot_forces: np.ndarray, rear: tuple[int, ...] = (2, 3)) -> f
     """Share of the total vertical foot force carried by the rear feet (forces (..., n_feet, 3) [N])."""
     fz = np.asarray(foot_forces, dtype=float)[..., 2].reshape(-1, np.shape(foot_forces)[-2]).sum(axis=0)
     return float(fz[list(rear)].sum() / fz.sum())
-
-
-def _base_z(q: np.ndarray) -> np.ndarray:
-    """World z axis of the base (T, 3) from quaternions (x, y, z, w) in ``q[:, 3:7]``."""
-    x, y, z, w = (q[:, 3 + i] / np.linalg.norm(q[:, 3:7], axis=1) for i in range(4))
-    return np.stack([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)], axis=1)

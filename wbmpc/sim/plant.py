@@ -24,6 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from wbmpc import checks
+from wbmpc.model.quaternion import tilt
+
 __all__ = ["ContactPlant", "PlantState", "fallen"]
 
 _VIOLATION_KINDS = ("pulling", "slipping", "penetrating")
@@ -297,8 +300,8 @@ class ContactPlant(Plant):
         Raises:
             ValueError: On a wrong shape or a non-finite value in ``q``, ``v`` or ``t``.
         """
-        q = _finite_vector(q, self._model.nq, "q")
-        v = _finite_vector(v, self._model.nv, "v")
+        q = checks.array("q", q, self._model.nq)
+        v = checks.array("v", v, self._model.nv)
         if not np.isfinite(t):
             raise ValueError(f"t must be finite, got {t}")
         q = pin.normalize(self._model, q)
@@ -337,12 +340,12 @@ class ContactPlant(Plant):
         """
         model, n = self._model, self._n_feet
         tau = self._tau
-        tau[6:] = _finite_vector(tau_joints, model.nv - 6, "tau_joints")
+        tau[6:] = checks.array("tau_joints", tau_joints, model.nv - 6)
         contact = _contact_flags(contact, n)
         if external_wrench is None:
             tau[:6] = 0.0
         else:
-            wrench = _finite_vector(external_wrench, 6, "external_wrench")
+            wrench = checks.array("external_wrench", external_wrench, 6)
             rot = pin.Quaternion(self._q[3:7]).toRotationMatrix()  # base -> world
             tau[:3] = rot.T @ wrench[:3]
             tau[3:6] = rot.T @ wrench[3:]
@@ -451,22 +454,7 @@ def fallen(
         True if the base is below ``ground_height + min_base_height`` or tilted by more than ``max_tilt``.
     """
     q = np.asarray(state.q, dtype=float)
-    qx, qy, qz, qw = q[3:7] / np.linalg.norm(q[3:7])
-    cos_tilt = np.clip(1.0 - 2.0 * (qx * qx + qy * qy), -1.0, 1.0)
-    return bool(q[2] < ground_height + min_base_height or np.arccos(cos_tilt) > max_tilt)
-
-
-def _finite_vector(x: np.ndarray, size: int, name: str) -> np.ndarray:
-    """``x`` as a float vector of shape (size,), or ValueError naming ``name``."""
-    try:
-        arr = np.asarray(x, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a numeric array of shape ({size},)") from exc
-    if arr.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf: {arr}")
-    return arr
+    return bool(q[2] < ground_height + min_base_height or tilt(q) > max_tilt)
 
 
 def _contact_flags(contact: np.ndarray, n: int) -> np.ndarray:

@@ -75,6 +75,7 @@ import pinocchio as pin
 import pybullet as p
 
 from wbmpc import checks
+from wbmpc.model.quaternion import rotation_matrix
 from wbmpc.model.robot import Robot, RobotModelError, example_robot_data_dir
 from wbmpc.sim.plant import Plant, PlantState
 from wbmpc.sim.plant import fallen as _fallen
@@ -260,7 +261,7 @@ class PyBulletPlant(Plant):
         self._friction_velocity = float(friction_velocity)
         com_offset = base_com_offset
         if com_offset is not None:
-            com_offset = _finite_vector(com_offset, 3, "base_com_offset")
+            com_offset = checks.array("base_com_offset", com_offset, 3)
         if not (np.isfinite(torque_latency) and torque_latency >= 0.0):
             raise ValueError(f"torque_latency must be >= 0 [s], got {torque_latency}")
         self._latency_steps = round(torque_latency / self._dt)
@@ -489,7 +490,7 @@ class PyBulletPlant(Plant):
         quat = _quat_mul(quat_c, self._q_il)
         if quat @ self._q[3:7] < 0.0:
             quat = -quat  # same rotation; stay in the previous state's hemisphere (no sign jumps in logs)
-        R = _quat_matrix(quat)
+        R = rotation_matrix(quat)
         r_c = R @ self._r_li  # base origin -> centre of mass, world
         omega = np.array(omega)
         q = np.empty(self._model.nq)
@@ -504,7 +505,7 @@ class PyBulletPlant(Plant):
 
     def _write_state(self, q: np.ndarray, v: np.ndarray) -> None:
         cid, body = self._client, self._body
-        R = _quat_matrix(q[3:7])
+        R = rotation_matrix(q[3:7])
         r_c = R @ self._r_li
         omega = R @ v[3:6]
         p.resetBasePositionAndOrientation(
@@ -536,8 +537,8 @@ class PyBulletPlant(Plant):
         Raises:
             ValueError: On a wrong shape or a non-finite value in ``q``, ``v`` or ``t``.
         """
-        q = _finite_vector(q, self._model.nq, "q").copy()
-        v = _finite_vector(v, self._model.nv, "v")
+        q = checks.array("q", q, self._model.nq).copy()
+        v = checks.array("v", v, self._model.nv)
         if not np.isfinite(t):
             raise ValueError(f"t must be finite, got {t}")
         norm = np.linalg.norm(q[3:7])
@@ -592,13 +593,13 @@ class PyBulletPlant(Plant):
         """
         del contact
         cid, body = self._client, self._body
-        tau = _finite_vector(tau_joints, self._robot.nj, "tau_joints")
+        tau = checks.array("tau_joints", tau_joints, self._robot.nj)
         clipped = np.abs(tau) > self._tau_limits
         if clipped.any():
             self._clip_counts += clipped
             tau = np.clip(tau, -self._tau_limits, self._tau_limits)
         tau = self._motor_dynamics(tau)
-        wrench = None if external_wrench is None else _finite_vector(external_wrench, 6, "external_wrench")
+        wrench = None if external_wrench is None else checks.array("external_wrench", external_wrench, 6)
         p.setJointMotorControlArray(body, self._joint_ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
         if wrench is not None:
             p.applyExternalForce(body, -1, wrench[:3], self._q[:3], p.WORLD_FRAME, physicsClientId=cid)
@@ -606,7 +607,7 @@ class PyBulletPlant(Plant):
         if ee_force is not None:
             if self._ee_link is None:
                 raise ValueError(f"robot {self._robot.name!r} has no end effector to push")
-            force = _finite_vector(ee_force, 3, "ee_force")
+            force = checks.array("ee_force", ee_force, 3)
             p.applyExternalForce(
                 body, self._ee_link, force, self.ee_position(), p.WORLD_FRAME, physicsClientId=cid
             )
@@ -743,10 +744,10 @@ class PyBulletPlant(Plant):
         if link == -1:
             pos, quat = p.getBasePositionAndOrientation(self._body, physicsClientId=cid)
             quat = _quat_mul(np.array(quat), _quat_conj(self._q_li))
-            R = _quat_matrix(quat)
+            R = rotation_matrix(quat)
             return pin.SE3(R, np.array(pos) - R @ self._r_li)
         s = p.getLinkState(self._body, link, computeForwardKinematics=True, physicsClientId=cid)
-        return pin.SE3(_quat_matrix(np.array(s[5])), np.array(s[4]))
+        return pin.SE3(rotation_matrix(np.array(s[5])), np.array(s[4]))
 
     def fallen(self, state: PlantState | None = None, **kwargs) -> bool:
         """:func:`wbmpc.sim.plant.fallen` on ``state`` (default: the current state); kwargs are passed on."""
@@ -769,9 +770,9 @@ class PyBulletPlant(Plant):
         dv = np.asarray(delta_v_world, dtype=float)
         if dv.shape not in ((3,), (6,)):
             raise ValueError(f"delta_v_world must have shape (3,) or (6,), got {dv.shape}")
-        dv = _finite_vector(dv, dv.size, "delta_v_world")
+        dv = checks.array("delta_v_world", dv, dv.size)
         q, v = self._read_state()
-        R = _quat_matrix(q[3:7])
+        R = rotation_matrix(q[3:7])
         v[:3] += R.T @ dv[:3]
         if dv.size == 6:
             v[3:6] += R.T @ dv[3:]
@@ -796,17 +797,17 @@ class PyBulletPlant(Plant):
             raise ValueError(f"a scene body is already named {name!r}")
         cid = self._client
         if isinstance(obj, Box):
-            half = 0.5 * _finite_vector(obj.size, 3, "Box.size")
+            half = 0.5 * checks.array("Box.size", obj.size, 3)
             shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid)
             body = p.createMultiBody(
                 obj.mass,
                 shape,
-                basePosition=_finite_vector(obj.position, 3, "Box.position"),
+                basePosition=checks.array("Box.position", obj.position, 3),
                 baseOrientation=p.getQuaternionFromEuler((0.0, 0.0, obj.yaw)),
                 physicsClientId=cid,
             )
         elif isinstance(obj, Wall):
-            n = _finite_vector(obj.normal, 3, "Wall.normal")
+            n = checks.array("Wall.normal", obj.normal, 3)
             n = n / np.linalg.norm(n)
             up = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
             up = up - (up @ n) * n
@@ -816,7 +817,7 @@ class PyBulletPlant(Plant):
             shape = p.createCollisionShape(
                 p.GEOM_BOX, halfExtents=[0.5 * obj.thickness, 0.5 * width, 0.5 * height], physicsClientId=cid
             )
-            centre = _finite_vector(obj.position, 3, "Wall.position") - 0.5 * obj.thickness * n
+            centre = checks.array("Wall.position", obj.position, 3) - 0.5 * obj.thickness * n
             body = p.createMultiBody(
                 0.0, shape, basePosition=centre, baseOrientation=_matrix_quat(R), physicsClientId=cid
             )
@@ -830,7 +831,7 @@ class PyBulletPlant(Plant):
             if obj.position is None:
                 position = self.ee_position() - [0.0, 0.0, obj.radius]
             else:
-                position = _finite_vector(obj.position, 3, "Payload.position")
+                position = checks.array("Payload.position", obj.position, 3)
             shape = p.createCollisionShape(p.GEOM_SPHERE, radius=obj.radius, physicsClientId=cid)
             body = p.createMultiBody(obj.mass, shape, basePosition=position, physicsClientId=cid)
             self._payloads[name] = obj
@@ -890,7 +891,7 @@ class PyBulletPlant(Plant):
                 p.setCollisionFilterPair(self._body, body, link, -1, 0, physicsClientId=cid)
             # Constraint frames are given in the link's inertial frame, not its URDF frame.
             info = p.getDynamicsInfo(self._body, self._ee_link, physicsClientId=cid)
-            pivot = _quat_matrix(np.array(info[4])).T @ (self._ee_offset.translation - np.array(info[3]))
+            pivot = rotation_matrix(np.array(info[4])).T @ (self._ee_offset.translation - np.array(info[3]))
             constraint = p.createConstraint(
                 self._body,
                 self._ee_link,
@@ -939,7 +940,7 @@ class PyBulletPlant(Plant):
             computeForwardKinematics=True,
             physicsClientId=cid,
         )
-        R = _quat_matrix(np.array(s[5]))
+        R = rotation_matrix(np.array(s[5]))
         r = R @ self._ee_offset.translation
         p_ee = np.array(s[4]) + r
         v_ee = np.array(s[6]) + _cross(s[7], r - np.subtract(s[0], s[4]))
@@ -1105,7 +1106,7 @@ def offset_base_com(urdf_text: str, offset: np.ndarray) -> str:
 def _joint_values(x, nj: int, name: str) -> np.ndarray:
     """A per-joint parameter >= 0: scalar or (nj,), as an (nj,) array."""
     arr = np.broadcast_to(np.asarray(x, dtype=float), (nj,)).copy() if np.ndim(x) == 0 else None
-    arr = _finite_vector(x, nj, name) if arr is None else arr
+    arr = checks.array(name, x, nj) if arr is None else arr
     if not np.isfinite(arr).all() or np.any(arr < 0):
         raise ValueError(f"{name} must be finite and >= 0, got {x!r}")
     return arr
@@ -1119,18 +1120,6 @@ def _scene_items(scene) -> list[tuple[str | None, SceneObject]]:
     if isinstance(scene, (Box, Wall, Payload)):
         return [(None, scene)]
     return [(None, obj) for obj in scene]
-
-
-def _quat_matrix(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = quat
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def _matrix_quat(R: np.ndarray) -> np.ndarray:
@@ -1159,16 +1148,3 @@ def _cross(a, b) -> np.ndarray:
 
 def _quat_conj(quat: np.ndarray) -> np.ndarray:
     return np.array([-quat[0], -quat[1], -quat[2], quat[3]])
-
-
-def _finite_vector(x, size: int, name: str) -> np.ndarray:
-    """``x`` as a float vector of shape (size,), or ValueError naming ``name``."""
-    try:
-        arr = np.asarray(x, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a numeric array of shape ({size},)") from exc
-    if arr.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf: {arr}")
-    return arr

@@ -27,6 +27,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.model.base_com import base_com_link, shift_base_com
+from wbmpc.model.robot import heading
 
 __all__ = [
     "BUDGET_S",
@@ -515,7 +516,7 @@ def identify_com_offset(
         fz = F[:, 2].sum()
         cx = (np.dot(p[:, 0], F[:, 2]) - np.dot(p[:, 2] - c[2], F[:, 0])) / fz
         cy = (np.dot(p[:, 1], F[:, 2]) - np.dot(p[:, 2] - c[2], F[:, 1])) / fz
-        yaw = np.arctan2(*_yaw_sin_cos(q[k]))
+        yaw = heading(q[k])
         R = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # world -> heading
         cop[k] = R @ (np.array([cx, cy]) - c[:2])
     shift = np.r_[cop.mean(axis=0), 0.0]
@@ -535,11 +536,6 @@ def identify_com_offset(
         link_mass=link_mass,
         body_mass=body_mass,
     )
-
-
-def _yaw_sin_cos(q: np.ndarray) -> tuple[float, float]:
-    x, y, z, w = q[3:7]
-    return 2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)
 
 
 # ------------------------------------------------------------------------------------------------- lean
