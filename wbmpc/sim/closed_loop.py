@@ -570,7 +570,6 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     model, data = robot.model, robot.model.createData()
     n_steps, per_mpc, per_low = config.steps()
     plant = make_plant(robot, config)
-    pybullet = config.plant == "pybullet"
     q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
     state = plant.reset(q0, np.zeros(model.nv))
     kp, kd = _joint_gains(robot, config)
@@ -624,7 +623,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     next_solve = 0  # plant step of the next MPC tick
     contacts_from = 0  # plant step at which period_contacts begins
     cmd = _commands(config, 0.0, schedule)
-    scene_names = plant.body_names if pybullet else []
+    scene_names = plant.body_names
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
 
     def run_summary(columns: Mapping, fell: bool) -> dict:  # columns from memory or the streamed file
@@ -759,8 +758,8 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             log.tau.append(tau.copy())
             log.tau_ff.append(low.last_reference.tau_ff)
             log.contact.append(contact)
-            log.contact_sim.append(plant.foot_contacts() if pybullet else np.asarray(contact, bool))
-            log.foot_forces.append(plant.contact_forces() if pybullet else plant.last_contact_forces)
+            log.contact_sim.append(plant.foot_contacts(contact))
+            log.foot_forces.append(plant.contact_forces())
             log.foot_height.append(plant.foot_positions[:, 2] - robot.foot_radius)
             log.base_velocity_cmd.append(cmd["base_velocity"])
             log.base_yaw_rate_cmd.append(cmd["base_yaw_rate"])
@@ -768,7 +767,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if ee_id is not None:  # only the end-effector frame is needed here
                 pin.forwardKinematics(model, data, q)
                 log.ee_position.append(pin.updateFramePlacement(model, data, ee_id).translation.copy())
-                log.ee_force_sim.append(plant.ee_contact_force() if pybullet else np.zeros(3))
+                log.ee_force_sim.append(plant.ee_contact_force())
             else:
                 log.ee_position.append(np.full(3, np.nan))
                 log.ee_force_sim.append(np.zeros(3))
@@ -784,18 +783,14 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if step in kicks:
                 state = plant.apply_base_velocity_kick(np.asarray(kicks[step].delta_v, dtype=float))
             wrench, ee_force = _push_forces(pushes, t)
-            if pybullet:
-                state = plant.step(tau, contact, external_wrench=wrench, ee_force=ee_force)
-            else:
-                state = plant.step(tau, contact)
+            state = plant.step(tau, contact, external_wrench=wrench, ee_force=ee_force)
         except FloatingPointError:
             fell = True
             break
     if bar is not None:
         bar.close()
     summary = log.finish(lambda columns: run_summary(columns, fell))
-    if hasattr(plant, "close"):
-        plant.close()
+    plant.close()
     return ClosedLoopResult(log=log, summary=summary, fell=fell)
 
 

@@ -62,8 +62,10 @@ class _ContactPattern:
 
 
 class Plant:
-    """What the closed loop reads from any plant; subclasses set ``_model``, ``_dt`` and ``_foot_names``
-    and implement ``reset(q, v, t)`` and ``step(tau_joints, contact, external_wrench)``."""
+    """The plant protocol: what the closed loop calls on any plant (the rigid-contact plant, PyBullet, the
+    emulated robot). Subclasses set ``_model``, ``_dt`` and ``_foot_names`` and implement :meth:`reset`,
+    :meth:`step`, :meth:`contact_forces` and :attr:`foot_positions`; the rest has defaults for a plant
+    without a scene (no bodies, no end-effector contact)."""
 
     _model: pin.Model
     _dt: float
@@ -93,6 +95,53 @@ class Plant:
     def foot_frames(self) -> tuple[str, ...]:
         """Foot frame names, in the order of the contact flags and force arrays."""
         return self._foot_names
+
+    def reset(self, q: np.ndarray, v: np.ndarray, t: float = 0.0) -> PlantState:
+        """Put the robot at configuration ``q`` (nq,) and velocity ``v`` (nv,) at time ``t`` [s]."""
+        raise NotImplementedError
+
+    def step(
+        self,
+        tau_joints: np.ndarray,
+        contact: np.ndarray,
+        external_wrench: np.ndarray | None = None,
+        ee_force: np.ndarray | None = None,
+    ) -> PlantState:
+        """Advance one step ``dt`` with the joint torques [N m] (nv - 6,) held constant; ``contact`` (n_feet,)
+        is the scheduled stance (imposed by a rigid-contact plant, ignored where contacts come from the
+        physics); ``external_wrench`` (6,) [N, N m] on the base and ``ee_force`` (3,) [N] on the end
+        effector are disturbances (world axes)."""
+        raise NotImplementedError
+
+    def contact_forces(self) -> np.ndarray:
+        """World forces of the ground on the feet during the last step [N], shape (n_feet, 3)."""
+        raise NotImplementedError
+
+    @property
+    def foot_positions(self) -> np.ndarray:
+        """World positions of the foot frames at the current state [m], shape (n_feet, 3)."""
+        raise NotImplementedError
+
+    def foot_contacts(self, scheduled: np.ndarray | None = None) -> np.ndarray:
+        """Feet on the ground, shape (n_feet,) bool. A plant that imposes its contacts returns ``scheduled``
+        (the stance about to be applied), one that simulates them what the physics gives."""
+        raise NotImplementedError
+
+    def ee_contact_force(self) -> np.ndarray:
+        """World force [N] of the scene on the end effector during the last step, shape (3,): zero here."""
+        return np.zeros(3)
+
+    @property
+    def body_names(self) -> list[str]:
+        """Names of the scene bodies (none here)."""
+        return []
+
+    def body_pose(self, name: str):
+        """Position and orientation of a scene body; a plant without a scene has none."""
+        raise ValueError(f"no scene body {name!r}: this plant has no scene")
+
+    def close(self) -> None:
+        """Release what the plant holds (a physics client); nothing here."""
 
 
 class ContactPlant(Plant):
@@ -263,6 +312,16 @@ class ContactPlant(Plant):
         """
         return self._forces.copy()
 
+    def contact_forces(self) -> np.ndarray:
+        """World forces of the ground on the feet during the last step [N], shape (n_feet, 3) (zero rows
+        for swing feet): :attr:`last_contact_forces`."""
+        return self.last_contact_forces
+
+    def foot_contacts(self, scheduled: np.ndarray | None = None) -> np.ndarray:
+        """The stance this plant imposes: ``scheduled`` if given (the flags about to be applied), else
+        those of the last step; shape (n_feet,) bool."""
+        return np.asarray(self.contact if scheduled is None else scheduled, dtype=bool).copy()
+
     @property
     def last_impulses(self) -> np.ndarray:
         """World-frame touchdown impulses applied in the last step [N s], shape (n_feet, 3) (zero if none)."""
@@ -321,7 +380,11 @@ class ContactPlant(Plant):
         return self.state
 
     def step(
-        self, tau_joints: np.ndarray, contact: np.ndarray, external_wrench: np.ndarray | None = None
+        self,
+        tau_joints: np.ndarray,
+        contact: np.ndarray,
+        external_wrench: np.ndarray | None = None,
+        ee_force: np.ndarray | None = None,
     ) -> PlantState:
         """Advance the plant by one step ``dt`` with the joint torques held constant.
 
@@ -330,6 +393,7 @@ class ContactPlant(Plant):
             contact: Stance flags, shape (n_feet,) bool (or 0/1), in the order of ``foot_frames``.
             external_wrench: Optional disturbance on the base, shape (6,): force [N] then torque [N m], with
                 world-aligned axes, applied at (and taken about) the base joint origin.
+            ee_force: Must be ``None``: the rigid plant has no scene to push the end effector.
 
         Returns:
             The state after the step (a copy).
@@ -338,6 +402,8 @@ class ContactPlant(Plant):
             ValueError: On a wrong shape or a non-finite value in an argument.
             FloatingPointError: If the dynamics produce a non-finite state (e.g. absurd torques).
         """
+        if ee_force is not None:
+            raise ValueError("the rigid-contact plant has no scene: ee_force needs the PyBullet plant")
         model, n = self._model, self._n_feet
         tau = self._tau
         tau[6:] = checks.array("tau_joints", tau_joints, model.nv - 6)

@@ -686,8 +686,9 @@ class PyBulletPlant(Plant):
         """
         return self._forces.copy()
 
-    def foot_contacts(self) -> np.ndarray:
-        """Feet pushed upwards by a contact after the last step, shape (n_feet,) bool."""
+    def foot_contacts(self, scheduled: np.ndarray | None = None) -> np.ndarray:
+        """Feet pushed upwards by a contact after the last step, shape (n_feet,) bool (``scheduled`` is
+        ignored: the contacts come from the physics)."""
         return self._in_contact.copy()
 
     def ee_contact_force(self) -> np.ndarray:
