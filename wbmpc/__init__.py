@@ -2,7 +2,7 @@
 
 Subpackages follow the data flow: ``model`` (robots) -> ``cpin`` (symbolic dynamics) -> ``ocp`` (gait,
 time grid, formulations, the builder) -> ``solver`` (code generation, deployment, BLASFEO) -> ``control``
-(the MPC, diagnostics, low level) -> ``estimation`` / ``sim`` (estimator; plants and the closed loop) ->
+(the MPC, prechecks, low level) -> ``estimation`` / ``sim`` (estimator; plants and the closed loop) ->
 ``io`` (logs, ROS 2 bags) -> ``viz`` (viewer, figures); ``studies`` holds the command lines (demo,
 benchmarks, Table I, experiments, sweeps).
 

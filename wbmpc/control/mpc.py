@@ -18,7 +18,7 @@ import pinocchio as pin
 
 from wbmpc import checks
 from wbmpc.control.config import DT_BOUNDS, SOLVERS, Commands, MPCConfig, MPCSolution, default_weights
-from wbmpc.control.diagnostics import exception_status, run_prechecks, solver_status
+from wbmpc.control.prechecks import run_prechecks
 from wbmpc.control.push_recovery import PushRecovery
 from wbmpc.model.robot import FOOT_NAMES, Robot, heading
 from wbmpc.model.statics import default_force_distribution, static_equilibrium
@@ -30,6 +30,7 @@ from wbmpc.ocp.gait import (
 from wbmpc.ocp.time_grid import geometric_time_steps, interp_rows, node_times
 from wbmpc.solver import codegen
 from wbmpc.solver.nlpsol import make_nlpsol, solver_options
+from wbmpc.solver.statuses import exception_status, solver_status
 
 __all__ = [
     "DT_BOUNDS",

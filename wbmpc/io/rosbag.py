@@ -143,7 +143,7 @@ bool success                         # the solver converged
 bool fallback                        # the previous plan was kept (solve failed)
 bool hold                            # the static hold was applied (no converged plan existed yet)
 float64 constraint_violation         # max constraint violation of the plan
-string status                        # named solver status (wbmpc.control.diagnostics.solver_status)
+string status                        # named solver status (wbmpc.solver.statuses.solver_status)
 string reason                        # why the solve failed (empty on success)
 """,
     "wbmpc_msgs/msg/PlanPreview": """\
