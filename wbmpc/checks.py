@@ -1,5 +1,5 @@
 """Argument checks shared by the public API: every bad input is refused up front with a ``ValueError``
-whose message names the argument, the value given and what is allowed (issue 12).
+whose message names the argument, the value given and what is allowed.
 
 Example:
     >>> number("ClosedLoopConfig.kp", -1.0, low=0.0)

@@ -1,6 +1,6 @@
 """An emulated robot: the PyBullet plant with the errors of hardware, and the state estimator in the loop.
 
-On the robot the MPC differs from the simulation in ways its model does not know about (project issue 13):
+On the robot the MPC differs from the simulation in ways its model does not know about:
 the motors have friction and rotor inertia, the base centre of mass sits far from the model's (the B1's
 rear legs carry about 60 % of the weight), torque commands arrive a few milliseconds late, nothing measures
 the floating base (a state estimator reconstructs it from a noisy, biased IMU and noisy encoders) and the
@@ -20,7 +20,7 @@ Two ways to use it:
   commands (0.3 m/s^2, 0.5 rad/s^2, :mod:`wbmpc.control.command_ramp`),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
-What the mismatches do to the MPC (issue 13, ``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
+What the mismatches do to the MPC (``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
 
 * Without the rotor inertia, the 3 ms torque latency (and, less, the sensor noise) destabilises the legs'
   damping loop ``Kd (v_des - v)`` behind the 50 Hz filter in swing: calf speeds beyond their limits, torques

@@ -174,7 +174,7 @@ class ClosedLoopConfig:
             raise ValueError("hardware (the emulated robot) needs plant='pybullet'")
 
     def _check_numbers(self) -> None:
-        """Rates, durations, gains and commands: finite, in range, right size (issue 12)."""
+        """Rates, durations, gains and commands: finite, in range, right size."""
         name = "ClosedLoopConfig."
         for key, unit in (("duration", "s"), ("mpc_rate", "Hz"), ("low_level_rate", "Hz"), ("plant_dt", "s")):
             checks.number(name + key, getattr(self, key), low=0.0, low_open=True, unit=unit)

@@ -1,4 +1,4 @@
-"""Analysis of a run log that came from a robot (project issue 13): what the hardware did differently.
+"""Analysis of a run log that came from a robot: what the hardware did differently.
 
 Every function takes a columnar :class:`~wbmpc.io.logs.RunLog`, typically read from a ROS 2 bag with
 :func:`wbmpc.io.rosbag.read_bag`, and uses only what a robot records: joint states (``q``, ``v``, applied
