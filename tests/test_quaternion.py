@@ -4,7 +4,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.model.quaternion import base_z_axis, rotation_matrix, tilt
+from wbmpc.model.quaternion import (
+    base_z_axis,
+    cross3,
+    quaternion_conjugate,
+    quaternion_from_matrix,
+    quaternion_multiply,
+    rotation_matrix,
+    tilt,
+)
 
 
 def _random_configurations(n, seed=0):
@@ -34,3 +42,16 @@ def test_tilt_is_roll_and_pitch_not_yaw_and_ignores_the_quaternion_scale():
     assert tilt(q) == pytest.approx(0.3, abs=1e-12)
     q[3:7] *= 3.0  # not normalised: the same tilt
     assert tilt(q) == pytest.approx(0.3, abs=1e-12)
+
+
+def test_product_conjugate_and_matrix_round_trip_match_pinocchio():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a, b = (pin.Quaternion(rng.normal(size=4)).normalized() for _ in range(2))
+        np.testing.assert_allclose(quaternion_multiply(a.coeffs(), b.coeffs()), (a * b).coeffs(), atol=1e-14)
+        np.testing.assert_allclose(quaternion_conjugate(a.coeffs()), a.conjugate().coeffs(), atol=0)
+        R = a.toRotationMatrix()
+        back = quaternion_from_matrix(R)
+        np.testing.assert_allclose(rotation_matrix(back), R, atol=1e-14)
+        x, y = rng.normal(size=3), rng.normal(size=3)
+        np.testing.assert_allclose(cross3(x, y), np.cross(x, y), atol=1e-14)

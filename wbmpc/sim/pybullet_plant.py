@@ -62,10 +62,7 @@ Example:
 
 from __future__ import annotations
 
-import re
 import tempfile
-import warnings
-import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,8 +72,15 @@ import pinocchio as pin
 import pybullet as p
 
 from wbmpc import checks
-from wbmpc.model.quaternion import rotation_matrix
-from wbmpc.model.robot import Robot, RobotModelError, example_robot_data_dir
+from wbmpc.model.quaternion import (
+    cross3,
+    quaternion_conjugate,
+    quaternion_from_matrix,
+    quaternion_multiply,
+    rotation_matrix,
+)
+from wbmpc.model.robot import Robot, RobotModelError
+from wbmpc.model.urdf import offset_base_com, preprocess_urdf
 from wbmpc.sim.plant import Plant, PlantState
 from wbmpc.sim.plant import fallen as _fallen
 
@@ -343,7 +347,7 @@ class PyBulletPlant(Plant):
         info = p.getDynamicsInfo(body, -1, physicsClientId=cid)
         self._r_li = np.array(info[3])
         self._q_li = np.array(info[4])
-        self._q_il = _quat_conj(self._q_li)
+        self._q_il = quaternion_conjugate(self._q_li)
 
         for link in range(-1, p.getNumJoints(body, physicsClientId=cid)):
             p.changeDynamics(
@@ -487,7 +491,7 @@ class PyBulletPlant(Plant):
         pos_c, quat_c = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         vel_c, omega = p.getBaseVelocity(body, physicsClientId=cid)
         states = p.getJointStates(body, self._joint_ids, physicsClientId=cid)
-        quat = _quat_mul(quat_c, self._q_il)
+        quat = quaternion_multiply(quat_c, self._q_il)
         if quat @ self._q[3:7] < 0.0:
             quat = -quat  # same rotation; stay in the previous state's hemisphere (no sign jumps in logs)
         R = rotation_matrix(quat)
@@ -498,7 +502,7 @@ class PyBulletPlant(Plant):
         q[:3] = np.subtract(pos_c, r_c)
         q[3:7] = quat
         q[7:] = [s[0] for s in states]
-        v[:3] = (np.subtract(vel_c, _cross(omega, r_c))) @ R
+        v[:3] = (np.subtract(vel_c, cross3(omega, r_c))) @ R
         v[3:6] = omega @ R
         v[6:] = [s[1] for s in states]
         return q, v
@@ -509,9 +513,9 @@ class PyBulletPlant(Plant):
         r_c = R @ self._r_li
         omega = R @ v[3:6]
         p.resetBasePositionAndOrientation(
-            body, q[:3] + r_c, _quat_mul(q[3:7], self._q_li), physicsClientId=cid
+            body, q[:3] + r_c, quaternion_multiply(q[3:7], self._q_li), physicsClientId=cid
         )
-        p.resetBaseVelocity(body, R @ v[:3] + _cross(omega, r_c), omega, physicsClientId=cid)
+        p.resetBaseVelocity(body, R @ v[:3] + cross3(omega, r_c), omega, physicsClientId=cid)
         p.resetJointStatesMultiDof(
             body,
             self._joint_ids,
@@ -720,7 +724,7 @@ class PyBulletPlant(Plant):
             )
             com, vel, omega = s[0], s[6], s[7]
         origin = (self._link_placement(link) * offset).translation
-        return np.concatenate([np.add(vel, _cross(omega, origin - np.array(com))), omega])
+        return np.concatenate([np.add(vel, cross3(omega, origin - np.array(com))), omega])
 
     @property
     def foot_positions(self) -> np.ndarray:
@@ -744,7 +748,7 @@ class PyBulletPlant(Plant):
         cid = self._client
         if link == -1:
             pos, quat = p.getBasePositionAndOrientation(self._body, physicsClientId=cid)
-            quat = _quat_mul(np.array(quat), _quat_conj(self._q_li))
+            quat = quaternion_multiply(np.array(quat), quaternion_conjugate(self._q_li))
             R = rotation_matrix(quat)
             return pin.SE3(R, np.array(pos) - R @ self._r_li)
         s = p.getLinkState(self._body, link, computeForwardKinematics=True, physicsClientId=cid)
@@ -820,7 +824,11 @@ class PyBulletPlant(Plant):
             )
             centre = checks.array("Wall.position", obj.position, 3) - 0.5 * obj.thickness * n
             body = p.createMultiBody(
-                0.0, shape, basePosition=centre, baseOrientation=_matrix_quat(R), physicsClientId=cid
+                0.0,
+                shape,
+                basePosition=centre,
+                baseOrientation=quaternion_from_matrix(R),
+                physicsClientId=cid,
             )
         else:
             if obj.attach not in (None, "rigid", "tether"):
@@ -944,7 +952,7 @@ class PyBulletPlant(Plant):
         R = rotation_matrix(np.array(s[5]))
         r = R @ self._ee_offset.translation
         p_ee = np.array(s[4]) + r
-        v_ee = np.array(s[6]) + _cross(s[7], r - np.subtract(s[0], s[4]))
+        v_ee = np.array(s[6]) + cross3(s[7], r - np.subtract(s[0], s[4]))
         body = self._bodies[name]
         pos, _ = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         vel, _ = p.getBaseVelocity(body, physicsClientId=cid)
@@ -984,125 +992,6 @@ class PyBulletPlant(Plant):
             pass
 
 
-# ---------------------------------------------------------------------------------------------- URDF
-def preprocess_urdf(urdf_path: str | Path, locked_joints: Mapping[str, float] | None = None) -> str:
-    """URDF text ready for PyBullet: no visuals, absolute mesh paths, locked joints made fixed.
-
-    Args:
-        urdf_path: The original URDF.
-        locked_joints: ``{joint name: angle}`` [rad] (or [m] for prismatic joints) to turn into fixed joints
-            at that value.
-
-    Returns:
-        The processed URDF as a string.
-
-    Raises:
-        RobotModelError: If a locked joint is missing or not revolute, continuous or prismatic.
-    """
-    urdf_path = Path(urdf_path)
-    root = ET.fromstring(urdf_path.read_text())
-    for link in root.iter("link"):
-        for visual in link.findall("visual"):
-            link.remove(visual)
-    for mesh in root.iter("mesh"):
-        mesh.set("filename", _resolve_mesh(mesh.get("filename", ""), urdf_path))
-    joints = {joint.get("name"): joint for joint in root.iter("joint") if joint.get("type")}
-    for name, value in (locked_joints or {}).items():
-        joint = joints.get(name)
-        if joint is None:
-            raise RobotModelError(f"locked joint {name!r} is not in {urdf_path}")
-        kind = joint.get("type")
-        if kind not in ("revolute", "continuous", "prismatic"):
-            raise RobotModelError(f"locked joint {name!r} has unsupported type {kind!r}")
-        origin = joint.find("origin")
-        xyz = np.array(origin.get("xyz", "0 0 0").split(), dtype=float) if origin is not None else np.zeros(3)
-        rpy = np.array(origin.get("rpy", "0 0 0").split(), dtype=float) if origin is not None else np.zeros(3)
-        axis_el = joint.find("axis")
-        axis = (
-            np.array(axis_el.get("xyz").split(), dtype=float)
-            if axis_el is not None
-            else np.array([1, 0, 0.0])
-        )
-        axis = axis / np.linalg.norm(axis)
-        placement = pin.SE3(pin.rpy.rpyToMatrix(rpy), xyz)
-        if kind == "prismatic":
-            motion = pin.SE3(np.eye(3), axis * value)
-        else:
-            motion = pin.SE3(pin.AngleAxis(value, axis).toRotationMatrix(), np.zeros(3))
-        placement = placement * motion
-        for tag in ("axis", "limit", "dynamics", "calibration", "safety_controller", "mimic", "origin"):
-            for element in joint.findall(tag):
-                joint.remove(element)
-        joint.set("type", "fixed")
-        new_origin = ET.SubElement(joint, "origin")
-        new_origin.set("xyz", " ".join(f"{x:.17g}" for x in placement.translation))
-        new_origin.set("rpy", " ".join(f"{x:.17g}" for x in pin.rpy.matrixToRpy(placement.rotation)))
-    return ET.tostring(root, encoding="unicode")
-
-
-def _resolve_mesh(filename: str, urdf_path: Path) -> str:
-    """Absolute path of a URDF mesh reference (``package://``, ``file://`` or relative)."""
-    match = re.match(r"package://([^/]+)/(.*)", filename)
-    if match:
-        package, rest = match.groups()
-        candidates = []
-        if package == "example-robot-data":
-            try:
-                candidates.append(example_robot_data_dir().parent / rest)
-            except RobotModelError:
-                pass
-        candidates += [parent / package / rest for parent in urdf_path.resolve().parents]
-        candidates += [parent / rest for parent in urdf_path.resolve().parents if parent.name == package]
-        for candidate in candidates:
-            if candidate.is_file():
-                return str(candidate)
-        warnings.warn(f"mesh {filename} not found; PyBullet will skip it", stacklevel=3)
-        return filename
-    if filename.startswith("file://"):
-        return filename[len("file://") :]
-    path = Path(filename)
-    return str(path if path.is_absolute() else (urdf_path.parent / path).resolve())
-
-
-def offset_base_com(urdf_text: str, offset: np.ndarray) -> str:
-    """URDF text with the base's centre of mass moved by ``offset`` [m] (root link frame).
-
-    The mass moved is the heaviest link rigidly attached to the root link (through fixed joints; the B1's
-    root ``base`` is a massless dummy on the ``trunk``), so that its inertial origin moves by ``offset``
-    expressed in the root frame.
-    """
-    root = ET.fromstring(urdf_text)
-    links = {link.get("name"): link for link in root.iter("link")}
-    children = {child.get("link") for child in root.iter("child")}
-    base = next(name for name in links if name not in children)
-    # Links rigidly attached to the base, with their rotation relative to it.
-    rigid, stack = {base: np.eye(3)}, [base]
-    while stack:
-        parent = stack.pop()
-        for joint in root.iter("joint"):
-            if joint.get("type") == "fixed" and joint.find("parent").get("link") == parent:
-                origin = joint.find("origin")
-                rpy = np.zeros(3) if origin is None else np.array(origin.get("rpy", "0 0 0").split(), float)
-                child = joint.find("child").get("link")
-                rigid[child] = rigid[parent] @ pin.rpy.rpyToMatrix(rpy)
-                stack.append(child)
-
-    def mass(name):
-        element = links[name].find("inertial/mass")
-        return 0.0 if element is None else float(element.get("value", 0.0))
-
-    heavy = max(rigid, key=mass)
-    inertial = links[heavy].find("inertial")
-    if inertial is None:
-        raise RobotModelError(f"no link rigidly attached to {base!r} has an <inertial> to move")
-    origin = inertial.find("origin")
-    if origin is None:
-        origin = ET.SubElement(inertial, "origin")
-    xyz = np.array(origin.get("xyz", "0 0 0").split(), dtype=float)
-    origin.set("xyz", " ".join(f"{x:.17g}" for x in xyz + rigid[heavy].T @ np.asarray(offset, float)))
-    return ET.tostring(root, encoding="unicode")
-
-
 # ---------------------------------------------------------------------------------------------- helpers
 def _joint_values(x, nj: int, name: str) -> np.ndarray:
     """A per-joint parameter >= 0: scalar or (nj,), as an (nj,) array."""
@@ -1121,31 +1010,3 @@ def _scene_items(scene) -> list[tuple[str | None, SceneObject]]:
     if isinstance(scene, (Box, Wall, Payload)):
         return [(None, scene)]
     return [(None, obj) for obj in scene]
-
-
-def _matrix_quat(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) of a rotation matrix."""
-    return pin.Quaternion(R).coeffs()
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a * b`` of quaternions (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
-
-
-def _cross(a, b) -> np.ndarray:
-    """Cross product of 3-vectors (``np.cross`` costs ~25 us on 3-vectors, this ~2 us)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _quat_conj(quat: np.ndarray) -> np.ndarray:
-    return np.array([-quat[0], -quat[1], -quat[2], quat[3]])
