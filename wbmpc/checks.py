@@ -99,7 +99,7 @@ def array(name: str, value, shape: int | tuple[int, ...] | None = None) -> np.nd
     if (shape is None and out.ndim != 1) or (shape is not None and out.shape != shape):
         raise ValueError(f"{name} must have shape {text}, got {out.shape}")
     if not np.all(np.isfinite(out)):
-        raise ValueError(f"{name} must be finite: it contains NaN or inf ({out})")
+        raise ValueError(f"{name} must be finite ({name} contains NaN or inf: {out})")
     return out
 
 
