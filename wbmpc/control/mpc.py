@@ -378,7 +378,9 @@ class WholeBodyMPC:
             args.pop("lam_g0", None)
             w2, lam_g2, report2 = self._run_solver(self._solver(True, self.config.retry_max_iter), args)
             report2["solve_time"] += report["solve_time"]
-            report2["iterations"] += max(report["iterations"], 0)
+            # -1 is "no iteration count" (the solver raised): the total counts the iterations that ran.
+            counts = [n for n in (report["iterations"], report2["iterations"]) if n >= 0]
+            report2["iterations"] = sum(counts) if counts else -1
             report2["timings"] = {**report2["timings"], "cold_retry": 1.0}
             if not report2["success"]:
                 report2["reason"] = f"warm start: {report['status']}; cold retry: {report2['reason']}"
