@@ -11,6 +11,7 @@ from wbmpc.control.arm_task import ArmReference
 from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
 from wbmpc.estimation import EstimatorNoise, StateEstimator
+from wbmpc.estimation.filters import LowPassFilter
 from wbmpc.io.rosbag import TopicMap
 from wbmpc.model.robot import RobotModelError, example_robot_data_dir, load, load_b1_z1, load_robot
 from wbmpc.model.statics import static_equilibrium
@@ -19,7 +20,7 @@ from wbmpc.ocp.gait import Gait, GaitSchedule, SwingParams, make_gait, parse_gai
 from wbmpc.sim.closed_loop import ClosedLoopConfig
 from wbmpc.sim.disturbances import Kick, Push
 from wbmpc.sim.pybullet_plant import Box, Payload, Wall
-from wbmpc.sim.sensing import LowPassFilter, SensorNoise
+from wbmpc.sim.sensing import SensorNoise
 
 MPC_CONFIGS = [
     ({"dt_min": 0.0}, "dt_min must be a positive number"),

@@ -36,8 +36,8 @@ def test_quick_benchmark_writes_records(tmp_path):
 
 
 def test_committed_table1_has_the_issue_columns_and_matches_its_markdown(tmp_path):
-    from wbmpc import table1
     from wbmpc.ocp.formulations import FORMULATIONS
+    from wbmpc.studies import table1
 
     rows = table1.load_table()
     required = {

@@ -1,7 +1,8 @@
 """The BLASFEO under Fatrop: native and generic give the same solves, the mapped library is the reported one,
 bad settings fail clearly, a missing native file falls back to the generic library with one line.
 
-Each case runs in a fresh subprocess: a process holds one BLASFEO, chosen at ``import wbmpc``.
+Each case runs in a fresh subprocess: a process holds one BLASFEO, chosen at the first import of
+``wbmpc.solver``.
 """
 
 import json
@@ -104,7 +105,7 @@ def test_the_mapped_library_is_the_reported_one(choice):
 
 
 def test_an_invalid_choice_raises_a_clear_error():
-    proc = run("import wbmpc", WBMPC_BLASFEO="fast")
+    proc = run("import wbmpc.solver", WBMPC_BLASFEO="fast")
     assert proc.returncode != 0
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("ValueError") and "WBMPC_BLASFEO" in last

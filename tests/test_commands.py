@@ -7,8 +7,8 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.control.arm_task import ArmReference, velocity_command
-from wbmpc.control.diagnostics import arm_reach, ee_world_hold
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control.prechecks import arm_reach, ee_world_hold
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import GaitSchedule, make_gait, parse_gait_schedule

@@ -256,24 +256,37 @@ def test_a_failed_first_solve_returns_the_static_hold(robot):
     assert not np.any(plan.v) and not np.any(plan.a)
 
 
+class _FailingSolver:
+    """A solver whose calls raise when ``fails(call number)`` says so (counted over all of an MPC's solvers),
+    else the real one's; its ``stats()`` are the real solver's."""
+
+    def __init__(self, solver, calls: dict, fails):
+        self.solver, self.calls, self.fails = solver, calls, fails
+
+    def __call__(self, **kwargs):
+        self.calls["n"] += 1
+        if self.fails(self.calls["n"]):
+            raise RuntimeError("injected failure")
+        return self.solver(**kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self.solver, name)
+
+
+def _inject_failures(mpc, monkeypatch, fails) -> None:
+    """Make the solver calls for which ``fails(n)`` (n = 1, 2, ... over the run's solver calls) raise. Counted
+    per call, not per solver built: the loop builds every solver before it starts (``prepare``)."""
+    real, calls = mpc._solver, {"n": 0}
+    monkeypatch.setattr(
+        mpc, "_solver", lambda cold, max_iter=None: _FailingSolver(real(cold, max_iter), calls, fails)
+    )
+
+
 def test_closed_loop_holds_until_the_first_converged_plan(robot, monkeypatch):
     """The first three solves fail (injected): the loop applies the static hold, says so once, keeps
     standing, and then runs on converged plans."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
-    real = mpc._solver
-    calls = {"n": 0}
-
-    def failing_first(cold, max_iter=None):
-        calls["n"] += 1
-        if calls["n"] <= 3:
-
-            def solve(**kwargs):
-                raise RuntimeError("injected failure")
-
-            return solve
-        return real(cold, max_iter)
-
-    monkeypatch.setattr(mpc, "_solver", failing_first)
+    _inject_failures(mpc, monkeypatch, lambda call: call <= 3)
     result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.25, arm_reference=None), progress=False)
     log = result.log.arrays()
     assert not result.fell
@@ -289,20 +302,7 @@ def test_closed_loop_holds_until_the_first_converged_plan(robot, monkeypatch):
 def test_a_failing_loop_says_why_once_and_counts(robot, monkeypatch, capsys):
     """Every solve after the first fails (injected): one printed line, every failure counted by reason."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
-    real = mpc._solver
-    calls = {"n": 0}
-
-    def failing_later(cold, max_iter=None):
-        calls["n"] += 1
-        if calls["n"] > 1:
-
-            def solve(**kwargs):
-                raise RuntimeError("injected failure")
-
-            return solve
-        return real(cold, max_iter)
-
-    monkeypatch.setattr(mpc, "_solver", failing_later)
+    _inject_failures(mpc, monkeypatch, lambda call: call > 1)
     result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, arm_reference=None), progress=False)
     printed = [line for line in capsys.readouterr().out.splitlines() if "solve failed" in line]
     assert len(printed) == 1 and "solver_exception" in printed[0] and "previous plan kept" in printed[0]

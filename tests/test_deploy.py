@@ -23,7 +23,7 @@ def test_c_program_matches_python(shared_cache, tmp_path, monkeypatch):
     plan = mpc.solve(q, v, warm_start=False)
     assert plan.success
 
-    folder = deploy.export(mpc, tmp_path / "deploy", warm=False, flags=("-O0",))
+    folder = deploy.export(mpc.ocp, tmp_path / "deploy", mpc.solver_options(cold=True), ("-O0",), ("-O0",))
     layout = json.loads((folder / "layout.json").read_text())
     assert [i["name"] for i in layout["inputs"]] == [
         "x0",
@@ -83,7 +83,8 @@ def _c_solution(folder, args, n, m):
 
 
 def test_the_default_export_is_the_warm_start_solver(shared_cache, tmp_path, monkeypatch):
-    """``export(mpc, folder)`` (warm=True, the default) writes the solver a controller calls on every tick
+    """``export(ocp, folder)`` (the default options: the MPC's defaults' warm start) writes the solver a
+    controller calls on every tick
     after the first: from the same warm start and duals it lands where the Python warm solve does; the
     cold-start export (other barrier and bound settings) lands elsewhere within the tolerance."""
     monkeypatch.setenv("WBMPC_CACHE_DIR", str(shared_cache))
@@ -99,10 +100,10 @@ def test_the_default_export_is_the_warm_start_solver(shared_cache, tmp_path, mon
     assert warm.success and "lam_g0" in mpc.last_inputs
     args = dict(mpc.last_inputs)
     n, m = mpc.ocp.n_variables, mpc.ocp.n_constraints
-    folder = deploy.export(mpc, tmp_path / "warm", flags=("-O0",))
+    folder = deploy.export(mpc.ocp, tmp_path / "warm", flags=("-O0",), nlp_flags=("-O0",))
     x_warm = _c_solution(folder, args, n, m)
     np.testing.assert_allclose(x_warm, warm.w, atol=1e-8)
-    cold = deploy.export(mpc, tmp_path / "cold", warm=False, flags=("-O0",))
+    cold = deploy.export(mpc.ocp, tmp_path / "cold", mpc.solver_options(cold=True), ("-O0",), ("-O0",))
     x_cold = _c_solution(cold, args, n, m)
     # The two exports are different solvers (measured: 5e-4 apart, the warm one 3e-14 from Python).
     assert np.abs(x_cold - warm.w).max() > 1e-6

@@ -4,11 +4,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control import diagnostics as diag
+from wbmpc.control import prechecks as diag
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
 from wbmpc.model.robot import load_b1, load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.failure_reporter import FailureReporter
+from wbmpc.solver import statuses
 
 
 @pytest.fixture(scope="module")
@@ -149,50 +151,51 @@ def test_fatrop_status_of_a_real_success_and_a_real_max_iter_failure(robot):
 
     solver = mpc.make_solver("diag_ok", cold=True)
     solver(**args)
-    assert diag.solver_status("fatrop", solver.stats()) == diag.FATROP_FLAGS[0]
-    assert diag.solver_status("fatrop", solver.stats())[0] == "success"
+    assert statuses.solver_status("fatrop", solver.stats()) == statuses.FATROP_FLAGS[0]
+    assert statuses.solver_status("fatrop", solver.stats())[0] == "success"
 
     capped = mpc.make_solver("diag_capped", cold=True, max_iter=1)
     capped(**args)
     stats = capped.stats()
     assert not stats["success"]
-    name, reason = diag.solver_status("fatrop", stats)
+    name, reason = statuses.solver_status("fatrop", stats)
     assert name == "max_iter_exceeded" and not name.isdigit()
     assert "iteration" in reason
 
 
 def test_status_tables_and_unknown_codes():
     assert (
-        diag.solver_status("ipopt", {"return_status": "Maximum_Iterations_Exceeded"})[0]
+        statuses.solver_status("ipopt", {"return_status": "Maximum_Iterations_Exceeded"})[0]
         == "max_iter_exceeded"
     )
-    assert diag.solver_status("ipopt", {"return_status": "Invalid_Number_Detected"})[0] == "invalid_number"
-    assert diag.solver_status("ipopt", {"return_status": "Solve_Succeeded"})[0] == "success"
-    assert diag.solver_status("ipopt", {"return_status": "Brand_New"})[0] == "ipopt_status_Brand_New"
+    invalid = statuses.solver_status("ipopt", {"return_status": "Invalid_Number_Detected"})
+    assert invalid[0] == "invalid_number"
+    assert statuses.solver_status("ipopt", {"return_status": "Solve_Succeeded"})[0] == "success"
+    assert statuses.solver_status("ipopt", {"return_status": "Brand_New"})[0] == "ipopt_status_Brand_New"
     assert (
-        diag.solver_status("fatrop", {"return_status": 1, "fatrop": {"return_flag": 4}})[0]
+        statuses.solver_status("fatrop", {"return_status": 1, "fatrop": {"return_flag": 4}})[0]
         == "line_search_failed"
     )
     assert (
-        diag.solver_status("fatrop", {"return_status": 1, "fatrop": {"return_flag": 42}})[0]
+        statuses.solver_status("fatrop", {"return_status": 1, "fatrop": {"return_flag": 42}})[0]
         == "fatrop_status_42"
     )
-    assert diag.solver_status("fatrop", {"return_status": 1})[0] == "fatrop_failed"
+    assert statuses.solver_status("fatrop", {"return_status": 1})[0] == "fatrop_failed"
     assert (
-        diag.solver_status("fatrop", {"return_status": -1, "fatrop": {"return_flag": 6}})[0]
+        statuses.solver_status("fatrop", {"return_status": -1, "fatrop": {"return_flag": 6}})[0]
         == "solver_exception"
     )
 
 
 def test_exception_status():
     nan = RuntimeError("Error in Function::call for 'solver' [FatropInterface]: nlp_g failed: NaN detected")
-    assert diag.exception_status(nan)[0] == "nan_in_evaluation"
-    assert diag.exception_status(RuntimeError("something else"))[0] == "solver_exception"
+    assert statuses.exception_status(nan)[0] == "nan_in_evaluation"
+    assert statuses.exception_status(RuntimeError("something else"))[0] == "solver_exception"
 
 
 # --- reporter -------------------------------------------------------------------------------------------
 def test_reporter_prints_once_per_reason_and_counts(capsys, robot):
-    reporter = diag.FailureReporter()
+    reporter = FailureReporter()
     assert reporter.report(0.10, "max_iter_exceeded", "Fatrop reached its iteration cap.")
     assert not reporter.report(0.12, "max_iter_exceeded", "Fatrop reached its iteration cap.")
     assert not reporter.report(0.14, "success")

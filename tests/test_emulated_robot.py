@@ -11,7 +11,8 @@ from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
-from wbmpc.sim.hardware import EstimatedState, HardwareProfile, hardware_config, rear_leg_share
+from wbmpc.sim.hardware import EstimatedState, HardwareProfile, rear_leg_share
+from wbmpc.sim.presets import hardware_config
 from wbmpc.sim.pybullet_plant import PyBulletPlant
 
 DT = 0.0005  # plant step [s]

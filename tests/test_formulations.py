@@ -6,7 +6,7 @@ import pinocchio as pin
 import pytest
 from conftest import forward_progress
 
-from wbmpc import codegen, cpin
+from wbmpc import cpin
 from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.model.statics import static_equilibrium
@@ -14,6 +14,7 @@ from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.formulations import FORMULATIONS, make_formulation
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.solver import codegen
 
 NAMES = list(FORMULATIONS)
 TOL = 1e-3  # the solver tolerance (paper)

@@ -4,12 +4,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from wbmpc.model.robot import FOOT_NAMES
+from wbmpc.model.statics import default_force_distribution
 from wbmpc.ocp.gait import (
-    FOOT_NAMES,
     Gait,
     GaitSchedule,
     SwingParams,
-    default_force_distribution,
     make_gait,
     parse_gait_schedule,
     swing_height_profile,
@@ -390,9 +390,9 @@ def test_force_distribution_edge_cases():
     for shape in ((4, 2, 2), (4, 1, 1)):
         with pytest.raises(ValueError, match="contact must be a bool array"):
             default_force_distribution(np.ones(shape, bool), 10.0)
-    with pytest.raises(ValueError, match="gravity must be finite and > 0"):
+    with pytest.raises(ValueError, match=r"gravity must be a finite number > 0 \[m/s\^2\], got -9.81"):
         default_force_distribution(np.ones(4, bool), 10.0, gravity=-9.81)
-    with pytest.raises(ValueError, match="mass must be finite and > 0"):
+    with pytest.raises(ValueError, match=r"mass must be a finite number > 0 \[kg\], got 0.0"):
         default_force_distribution(np.ones(4, bool), 0.0)
-    with pytest.raises(ValueError, match="front_ratio must be finite"):
+    with pytest.raises(ValueError, match=r"front_ratio must be a finite number in \[0, 1\], got nan"):
         default_force_distribution(np.ones(4, bool), 10.0, front_ratio=float("nan"))

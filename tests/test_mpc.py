@@ -7,10 +7,11 @@ import pytest
 from conftest import forward_progress
 
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.model.quaternion import tilt
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import make_gait
-from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop, tilt
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 
 TOL = 1e-3  # the solver tolerance (paper)
 
@@ -397,3 +398,29 @@ def test_limit_rows_have_unit_slacks_and_the_same_feasible_set(robot):
     )
     v_max = robot.joint_velocity_limits
     np.testing.assert_allclose(g[stage.rows["joint_velocity_limits"]] * v_max, blocks["v"][2][6:], atol=1e-12)
+
+
+def test_a_raising_cold_retry_after_an_unconverged_warm_solve_reports_the_warm_iterations(robot, monkeypatch):
+    """Warm solve stops at its iteration cap, the cold retry raises: the report counts the warm solve's
+    iterations, as the same warm solve without a retry reports them (they used to be added to the retry's
+    -1, "no count", one too few)."""
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    v_kicked = v.copy()
+    v_kicked[:3] = (0.5, -0.4, 0.3)  # one iteration cannot converge from here
+    counts = []
+    for retry in (False, True):
+        mpc = _standing_mpc(robot, max_iter=1, cold_retry=retry)
+        assert mpc.solve(q, v, 0.0).success
+        if retry:
+            real = mpc._solver
+
+            def raising(**kwargs):
+                raise RuntimeError("injected failure")
+
+            monkeypatch.setattr(
+                mpc, "_solver", lambda cold, max_iter=None, real=real: raising if cold else real(cold)
+            )
+        plan = mpc.solve(q, v_kicked, 0.0125)
+        assert not plan.success and plan.fallback
+        counts.append(plan.iterations)
+    assert counts[0] >= 1 and counts[1] == counts[0], counts

@@ -5,13 +5,14 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.estimation.filters import LowPassFilter
 from wbmpc.io.logs import RunLog, load_log, save_log
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 from wbmpc.sim.disturbances import Kick, Push
-from wbmpc.sim.sensing import LowPassFilter, SensorNoise, StateSensor
+from wbmpc.sim.sensing import SensorNoise, StateSensor
 
 
 @pytest.fixture(scope="module")
@@ -183,7 +184,7 @@ def test_a_fall_between_solves_ends_the_run_on_the_tick_it_happens(robot):
     """A roll kick tilts the base past ``max_tilt`` while the solver is busy (a 60 ms delay: one solve per
     five MPC periods): the run ends on the first logged tick beyond the limit, with ``fell`` set, not on a
     later solve after the base may have come back (the summary's max tilt and ``fell`` agree)."""
-    from wbmpc.sim.closed_loop import tilt
+    from wbmpc.model.quaternion import tilt
 
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=7), MPCConfig(gait=make_gait("stand")))
     mpc.verbose = False

@@ -235,7 +235,7 @@ def test_plant_loads_the_masses_of_the_model(tmp_path):
     """The URDF the plant gives PyBullet has, link by link, the mass of the checked model."""
     import pybullet as p  # pinned in environment.txt: a broken install fails, never skips
 
-    from wbmpc.sim.pybullet_plant import preprocess_urdf
+    from wbmpc.model.urdf import preprocess_urdf
 
     robot = _load(locked_joints=("arm_joint2",))
     urdf = tmp_path / "plant.urdf"

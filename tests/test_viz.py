@@ -74,7 +74,7 @@ def test_visual_model_matches_robot_model(robot):
 
 def test_visual_model_falls_back_to_primitives(robot, monkeypatch):
     # Another package folder (a new cache entry) and mesh references that lead nowhere.
-    monkeypatch.setattr(viz, "_package_dirs", lambda: ("/nonexistent/mesh/dir",))
+    monkeypatch.setattr(viz, "default_package_dirs", lambda: ("/nonexistent/mesh/dir",))
     monkeypatch.setattr(viz, "resolve_mesh_path", lambda filename, *args: "/nonexistent/mesh/dir/x.dae")
     with pytest.warns(UserWarning, match="primitive shapes"):
         model, geometry = visual_model(robot)

@@ -1,5 +1,5 @@
 """Argument checks shared by the public API: every bad input is refused up front with a ``ValueError``
-whose message names the argument, the value given and what is allowed (issue 12).
+whose message names the argument, the value given and what is allowed.
 
 Example:
     >>> number("ClosedLoopConfig.kp", -1.0, low=0.0)
@@ -77,6 +77,30 @@ def vector(name: str, value, sizes: int | tuple[int, ...], *, unit: str = "") ->
     if not np.all(np.isfinite(array)):
         raise ValueError(f"{name} must be {what}, got {value!r} (NaN or inf)")
     return array
+
+
+def array(name: str, value, shape: int | tuple[int, ...] | None = None) -> np.ndarray:
+    """``value`` as a finite float array (a copy) of exactly ``shape``, or ``ValueError`` naming ``name``.
+
+    Args:
+        name: How the user spells the argument (e.g. ``"q_hat"``).
+        value: The value given.
+        shape: The shape (an int ``n`` is ``(n,)``); ``None``: any 1-D shape.
+    """
+    if isinstance(shape, numbers.Integral):
+        shape = (int(shape),)
+    elif shape is not None:
+        shape = tuple(int(n) for n in shape)
+    text = "a 1-D shape" if shape is None else str(shape)
+    try:
+        out = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array of shape {text}, got {value!r}") from None
+    if (shape is None and out.ndim != 1) or (shape is not None and out.shape != shape):
+        raise ValueError(f"{name} must have shape {text}, got {out.shape}")
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"{name} must be finite ({name} contains NaN or inf: {out})")
+    return out
 
 
 def names(name: str, value, *, min_count: int = 0, unique: bool = True) -> tuple[str, ...]:

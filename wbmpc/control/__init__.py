@@ -1,1 +1,1 @@
-"""The controller: the whole-body MPC, its diagnostics, the 500 Hz low level, the arm task."""
+"""The controller: the whole-body MPC, its prechecks, the 500 Hz low level, the arm task."""

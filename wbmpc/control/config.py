@@ -21,8 +21,8 @@ from wbmpc.ocp.gait import (
     make_gait,
 )
 from wbmpc.ocp.time_grid import node_times
+from wbmpc.solver.nlpsol import SOLVERS, TOL, WARM_MAX_ITER, WARM_MU_INIT
 
-SOLVERS = ("fatrop", "ipopt")
 DT_BOUNDS = (1e-4, 1.0)  # [s] sane range of the MPC's time steps
 
 
@@ -150,10 +150,10 @@ class MPCConfig:
     R: np.ndarray | None = None
     front_force_ratio: float | None = None
     solver: str = "fatrop"
-    tol: float = 1e-3
-    max_iter: int = 30
+    tol: float = TOL
+    max_iter: int = WARM_MAX_ITER
     cold_max_iter: int = 200
-    mu_init_warm: float = 1e-4
+    mu_init_warm: float = WARM_MU_INIT
     mu_init_cold: float = 1e-1
     dual_warm_start: bool = True
     compiled: bool = False

@@ -18,18 +18,19 @@ import pinocchio as pin
 
 from wbmpc import checks
 from wbmpc.control.config import DT_BOUNDS, SOLVERS, Commands, MPCConfig, MPCSolution, default_weights
-from wbmpc.control.diagnostics import exception_status, run_prechecks, solver_status
+from wbmpc.control.prechecks import run_prechecks
 from wbmpc.control.push_recovery import PushRecovery
-from wbmpc.model.robot import Robot, heading
-from wbmpc.model.statics import static_equilibrium
+from wbmpc.model.robot import FOOT_NAMES, Robot, heading
+from wbmpc.model.statics import default_force_distribution, static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import (
-    FOOT_NAMES,
     GaitSchedule,
-    default_force_distribution,
     swing_vertical_velocity,
 )
 from wbmpc.ocp.time_grid import geometric_time_steps, interp_rows, node_times
+from wbmpc.solver import codegen
+from wbmpc.solver.nlpsol import make_nlpsol, solver_options
+from wbmpc.solver.statuses import exception_status, solver_status
 
 __all__ = [
     "DT_BOUNDS",
@@ -106,40 +107,31 @@ class WholeBodyMPC:
         self._solver(False)
         self._solver(True, self.config.retry_max_iter)
 
-    def make_solver(self, name: str, cold: bool, max_iter: int | None = None) -> ca.Function:
-        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config
-        (``max_iter`` overrides the config's iteration cap)."""
+    def solver_options(self, cold: bool, max_iter: int | None = None) -> dict:
+        """The ``casadi.nlpsol`` options of this MPC's cold- or warm-start solves
+        (:func:`wbmpc.solver.nlpsol.solver_options`; ``max_iter`` overrides the config's iteration cap)."""
         cfg = self.config
         if max_iter is None:
             max_iter = cfg.cold_max_iter if cold else cfg.max_iter
-        mu_init = cfg.mu_init_cold if cold else cfg.mu_init_warm
-        if cfg.solver == "fatrop":
-            inner = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init}
-            if not cold:
-                # The casadi 3.8.2 Fatrop plugin accepts bound_push but not the warm_start_* options.
-                inner["bound_push"] = 1e-7
-            opts = {
-                "structure_detection": "auto",
-                "equality": self.ocp.equality,
-                "print_time": False,
-                "fatrop": inner,
-            }
-        else:
-            ipopt = {"print_level": 0, "tol": cfg.tol, "max_iter": max_iter, "mu_init": mu_init, "sb": "yes"}
-            if not cold:
-                ipopt |= {
-                    "warm_start_init_point": "yes",
-                    "warm_start_bound_push": 1e-7,
-                    "warm_start_mult_bound_push": 1e-7,
-                }
-            opts = {"print_time": False, "ipopt": ipopt}
-        if cfg.compiled:
-            from wbmpc.solver import codegen
+        return solver_options(
+            cfg.solver,
+            tol=cfg.tol,
+            max_iter=max_iter,
+            mu_init=cfg.mu_init_cold if cold else cfg.mu_init_warm,
+            warm=not cold,
+            equality=self.ocp.equality,
+        )
 
+    def make_solver(self, name: str, cold: bool, max_iter: int | None = None) -> ca.Function:
+        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config
+        (``max_iter`` overrides the config's iteration cap); compiled (cached) with ``config.compiled``."""
+        cfg = self.config
+        library = None
+        if cfg.compiled:
             if self.compiled_nlp is None:
                 self.compiled_nlp = codegen.build(self.ocp, tuple(cfg.compile_flags), progress=self.verbose)
-            return ca.nlpsol(name, cfg.solver, str(self.compiled_nlp.library), opts)
-        return ca.nlpsol(name, cfg.solver, self.ocp.nlp, {**opts, "expand": True})
+            library = self.compiled_nlp.library
+        return make_nlpsol(name, cfg.solver, self.ocp.nlp, self.solver_options(cold, max_iter), library)
 
     # --- parameters -----------------------------------------------------------------------------------------
     def time_steps(self) -> np.ndarray:
@@ -347,8 +339,8 @@ class WholeBodyMPC:
         t = checks.number("t", t, unit="s")
         if commands is not None and not isinstance(commands, Commands):
             raise ValueError(f"commands must be a Commands (wbmpc.control.mpc) or None, got {commands!r}")
-        q_hat = _checked("q_hat", q_hat, self.robot.nq)
-        v_hat = _checked("v_hat", v_hat, self.robot.nv)
+        q_hat = checks.array("q_hat", q_hat, self.robot.nq)
+        v_hat = checks.array("v_hat", v_hat, self.robot.nv)
         q_hat = q_hat.copy()
         norm = np.linalg.norm(q_hat[3:7])
         if norm < 1e-6:
@@ -386,7 +378,9 @@ class WholeBodyMPC:
             args.pop("lam_g0", None)
             w2, lam_g2, report2 = self._run_solver(self._solver(True, self.config.retry_max_iter), args)
             report2["solve_time"] += report["solve_time"]
-            report2["iterations"] += max(report["iterations"], 0)
+            # -1 is "no iteration count" (the solver raised): the total counts the iterations that ran.
+            counts = [n for n in (report["iterations"], report2["iterations"]) if n >= 0]
+            report2["iterations"] = sum(counts) if counts else -1
             report2["timings"] = {**report2["timings"], "cold_retry": 1.0}
             if not report2["success"]:
                 report2["reason"] = f"warm start: {report['status']}; cold retry: {report2['reason']}"
@@ -557,12 +551,3 @@ def solver_timings(stats: dict, wall: float) -> dict:
         out["search_direction"] = float(fatrop.get("compute_sd_time", 0.0))
         out["initialization"] = float(fatrop.get("initialization_time", 0.0))
     return out
-
-
-def _checked(name: str, value, size: int) -> np.ndarray:
-    value = np.asarray(value, dtype=float)
-    if value.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got {value.shape}")
-    if not np.all(np.isfinite(value)):
-        raise ValueError(f"{name} contains NaN or inf")
-    return value

@@ -23,7 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.model.robot import heading
-from wbmpc.ocp.gait import default_force_distribution
+from wbmpc.model.statics import default_force_distribution
 from wbmpc.ocp.time_grid import interp_rows, node_times
 
 #: An aborted swing's descent aims this far below the ground [m], so that the foot reaches it.

@@ -62,8 +62,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from wbmpc import checks
+from wbmpc.estimation.filters import LowPassFilter
 from wbmpc.model.robot import Robot
-from wbmpc.sim.sensing import LowPassFilter
 
 __all__ = [
     "EstimatorNoise",
@@ -79,18 +80,6 @@ _E_Z = np.array([0.0, 0.0, 1.0])
 
 
 # ---------------------------------------------------------------------------------------------- readings
-def _vector(name: str, value, size: int | None = None) -> np.ndarray:
-    """A finite float vector (copy), with a ValueError naming ``name`` otherwise."""
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a numeric vector, got {value!r}") from exc
-    if arr.ndim != 1 or (size is not None and arr.shape != (size,)):
-        want = f"({size},)" if size is not None else "a 1-D shape"
-        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains NaN or inf")
-    return arr
 
 
 @dataclass
@@ -110,10 +99,10 @@ class ImuReading:
     orientation: np.ndarray | None = None
 
     def __post_init__(self):
-        self.gyro = _vector("imu.gyro", self.gyro, 3)
-        self.accelerometer = _vector("imu.accelerometer", self.accelerometer, 3)
+        self.gyro = checks.array("imu.gyro", self.gyro, 3)
+        self.accelerometer = checks.array("imu.accelerometer", self.accelerometer, 3)
         if self.orientation is not None:
-            quat = _vector("imu.orientation", self.orientation, 4)
+            quat = checks.array("imu.orientation", self.orientation, 4)
             norm = np.linalg.norm(quat)
             if norm < 1e-9:
                 raise ValueError("imu.orientation has zero norm")
@@ -133,8 +122,8 @@ class JointReading:
     velocities: np.ndarray
 
     def __post_init__(self):
-        self.positions = _vector("joints.positions", self.positions)
-        self.velocities = _vector("joints.velocities", self.velocities)
+        self.positions = checks.array("joints.positions", self.positions)
+        self.velocities = checks.array("joints.velocities", self.velocities)
         if self.velocities.shape != self.positions.shape:
             raise ValueError(
                 f"joints.velocities must have the shape of joints.positions {self.positions.shape}, "
@@ -225,8 +214,8 @@ class ImuNoise:
         _check_fields(self, ("gyro", "accelerometer"))
         if self.orientation is not None:
             _check_fields(self, ("orientation",))
-        _vector("ImuNoise.gyro_bias", self.gyro_bias, 3)
-        _vector("ImuNoise.accelerometer_bias", self.accelerometer_bias, 3)
+        checks.array("ImuNoise.gyro_bias", self.gyro_bias, 3)
+        checks.array("ImuNoise.accelerometer_bias", self.accelerometer_bias, 3)
 
 
 # ---------------------------------------------------------------------------------------------- IMU model
@@ -261,8 +250,8 @@ def synthesize_imu(
     Raises:
         ValueError: On inconsistent shapes, non-finite values or a non-positive ``dt``.
     """
-    q, q_prev = _vector("q", q), _vector("q_prev", q_prev, np.size(q))
-    v, v_prev = _vector("v", v, q.size - 1), _vector("v_prev", v_prev, q.size - 1)
+    q, q_prev = checks.array("q", q), checks.array("q_prev", q_prev, np.size(q))
+    v, v_prev = checks.array("v", v, q.size - 1), checks.array("v_prev", v_prev, q.size - 1)
     if q.size < 7:
         raise ValueError(f"q must hold a free-flyer base (size >= 7), got {q.size}")
     if not (np.isfinite(dt) and dt > 0):
@@ -386,8 +375,8 @@ class StateEstimator:
             q0: Configuration (nq,), Pinocchio convention.
             v0: Velocity (nv,), base velocities in the base frame.
         """
-        q0 = _vector("q0", q0, self.model.nq)
-        v0 = _vector("v0", v0, self.model.nv)
+        q0 = checks.array("q0", q0, self.model.nq)
+        v0 = checks.array("v0", v0, self.model.nv)
         n = self.noise
         self._R = _rotation(q0[3:7])
         self._quat_ref = q0[3:7] / np.linalg.norm(q0[3:7])
@@ -448,7 +437,7 @@ class StateEstimator:
         if trust is None:
             trust_arr = contact_arr.astype(float)
         else:
-            trust_arr = _vector("trust", trust, self.n_feet)
+            trust_arr = checks.array("trust", trust, self.n_feet)
             if np.any((trust_arr < 0) | (trust_arr > 1)):
                 raise ValueError(f"trust must be in [0, 1], got {trust_arr!r}")
             trust_arr = np.where(contact_arr, trust_arr, 0.0)

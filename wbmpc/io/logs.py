@@ -45,7 +45,7 @@ Columns written by :func:`wbmpc.sim.closed_loop.run_closed_loop` (units SI, worl
 ``signals/ee_force_cmd``  commanded end-effector force [N] (T, 3)
 ``solves/solve_time``  wall time of the solve [s]; ``iterations``; ``success``; ``fallback``;
                        ``violation`` (max constraint violation); ``status`` (named solver status,
-                       :func:`wbmpc.control.diagnostics.solver_status`); ``reason`` (why it failed)
+                       :func:`wbmpc.solver.statuses.solver_status`); ``reason`` (why it failed)
 ``solves/plan_q``, ``plan_v``, ``plan_tau``, ``plan_forces``  first nodes of each plan (S, n, ...)
 ``solves/plan_contact``  stance flags the plan used on its first stage (S, 4)
 ``solves/hold``        the static hold was applied (no converged plan existed yet)

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     from wbmpc.model.calibration import Calibration
 
 FOOT_NAMES = ("FL", "FR", "RL", "RR")
+FRONT_FEET = np.array([True, True, False, False])  # FL, FR: the front feet, in FOOT_NAMES order
 UNITREE_FOOT_FRAMES = tuple(f"{name}_foot" for name in FOOT_NAMES)
 B1_Z1_LOCKED_JOINTS = ("joint5", "joint6", "jointGripper")
 B1_Z1_EE_FRAME = "gripper_center"

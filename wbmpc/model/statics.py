@@ -30,8 +30,41 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.model.robot import Robot
-from wbmpc.ocp.gait import default_force_distribution
+from wbmpc import checks
+from wbmpc.model.robot import FRONT_FEET, Robot
+
+
+def default_force_distribution(contact, mass: float, gravity: float = 9.81, front_ratio: float = 0.5):
+    """Nominal vertical contact forces [N] carrying the weight m g over the stance feet.
+
+    With front and rear feet in stance, front_ratio * m g is shared equally by the front stance feet and
+    (1 - front_ratio) * m g by the rear ones; if only front (or only rear) feet are in stance they carry
+    all of m g. Swing feet get 0, and so does every foot when none is in stance.
+
+    Args:
+        contact: Bool array (4,) or (4, n), True = stance, FOOT_NAMES order.
+        mass: Total robot mass m [kg], > 0.
+        gravity: g [m/s^2], > 0.
+        front_ratio: Share of the weight on the front feet, in [0, 1].
+
+    Returns:
+        Array with the shape of `contact`; each column sums to m g if any foot is in stance.
+    """
+    contact = np.asarray(contact)
+    if contact.shape[:1] != (4,) or contact.ndim > 2 or not np.all((contact == 0) | (contact == 1)):
+        raise ValueError(f"contact must be a bool array of shape (4,) or (4, n), got shape {contact.shape}")
+    weight = checks.number("mass", mass, low=0.0, low_open=True, unit="kg")
+    weight *= checks.number("gravity", gravity, low=0.0, low_open=True, unit="m/s^2")
+    checks.number("front_ratio", front_ratio, low=0.0, high=1.0)
+    c = contact.astype(bool).reshape(4, -1)
+    n_front, n_rear = c[FRONT_FEET].sum(axis=0), c[~FRONT_FEET].sum(axis=0)
+    both = (n_front > 0) & (n_rear > 0)
+    w_front = np.where(both, front_ratio, (n_front > 0).astype(float)) * weight
+    w_rear = np.where(both, 1.0 - front_ratio, (n_rear > 0).astype(float)) * weight
+    per_front = w_front / np.maximum(n_front, 1)
+    per_rear = w_rear / np.maximum(n_rear, 1)
+    forces = c * np.where(FRONT_FEET[:, None], per_front[None, :], per_rear[None, :])
+    return forces.reshape(contact.shape)
 
 
 @dataclass
@@ -107,18 +140,18 @@ def static_equilibrium(
             an end-effector force on a robot without an arm, or ``weight`` outside (0, 1).
     """
     model = robot.model
-    q = _finite_array("q", q, (model.nq,))
+    q = checks.array("q", q, (model.nq,))
     if abs(np.linalg.norm(q[3:7]) - 1.0) > 1e-6:
         norm = np.linalg.norm(q[3:7])
         raise ValueError(f"q: base quaternion q[3:7] must have unit norm, got norm {norm:.6g}")
     contact = _contact_flags(contact, robot.n_feet)
     if ee_force is not None and not robot.has_arm:
         raise ValueError(f"ee_force: robot {robot.name!r} has no end effector")
-    F_e = np.zeros(3) if ee_force is None else _finite_array("ee_force", ee_force, (3,))
+    F_e = np.zeros(3) if ee_force is None else checks.array("ee_force", ee_force, (3,))
     if reference_forces is None:
         reference = _default_reference(robot, contact)
     else:
-        reference = _finite_array("reference_forces", reference_forces, (robot.n_feet, 3))
+        reference = checks.array("reference_forces", reference_forces, (robot.n_feet, 3))
     if not 0.0 < float(weight) < 1.0:
         raise ValueError(f"weight must be in (0, 1), got {weight}")
 
@@ -185,18 +218,6 @@ def check_friction(forces, mu: float, tol: float = 1e-9) -> np.ndarray:
 def _linear_jacobian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray:
     """Rows (3, nv) of the LOCAL_WORLD_ALIGNED frame Jacobian: world-frame velocity of the frame origin."""
     return pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3].copy()
-
-
-def _finite_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
-    try:
-        array = np.array(value, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be a numeric array of shape {shape}") from err
-    if array.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite (no NaN or inf)")
-    return array
 
 
 def _contact_flags(contact, n_feet: int) -> np.ndarray:

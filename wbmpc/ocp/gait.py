@@ -29,9 +29,7 @@ from typing import NamedTuple
 import casadi as ca
 import numpy as np
 
-FOOT_NAMES = ("FL", "FR", "RL", "RR")
 SCHEDULE_TICK = 5e-4  # [s] resolution of every contact schedule: the default plant step
-FRONT = np.array([True, True, False, False])  # FL, FR are the front feet
 
 
 def _finite(name: str, value, positive: bool = False) -> float:
@@ -433,36 +431,3 @@ def _velocity(phi, T, h, v_lo, v_td, select):
     v1 = v_lo * (1 - 4 * s1 + 3 * s1**2) + (6 * h / d) * (s1 - s1**2)
     v2 = v_td * (3 * s2**2 - 2 * s2) - (6 * h / d) * (s2 - s2**2)
     return select(phi < 0.5, v1, v2)
-
-
-def default_force_distribution(contact, mass: float, gravity: float = 9.81, front_ratio: float = 0.5):
-    """Nominal vertical contact forces [N] carrying the weight m g over the stance feet.
-
-    With front and rear feet in stance, front_ratio * m g is shared equally by the front stance feet and
-    (1 - front_ratio) * m g by the rear ones; if only front (or only rear) feet are in stance they carry
-    all of m g. Swing feet get 0, and so does every foot when none is in stance.
-
-    Args:
-        contact: Bool array (4,) or (4, n), True = stance, FOOT_NAMES order.
-        mass: Total robot mass m [kg], > 0.
-        gravity: g [m/s^2], > 0.
-        front_ratio: Share of the weight on the front feet, in [0, 1].
-
-    Returns:
-        Array with the shape of `contact`; each column sums to m g if any foot is in stance.
-    """
-    contact = np.asarray(contact)
-    if contact.shape[:1] != (4,) or contact.ndim > 2 or not np.all((contact == 0) | (contact == 1)):
-        raise ValueError(f"contact must be a bool array of shape (4,) or (4, n), got shape {contact.shape}")
-    weight = _finite("mass", mass, positive=True) * _finite("gravity", gravity, positive=True)
-    if not 0.0 <= _finite("front_ratio", front_ratio) <= 1.0:
-        raise ValueError(f"front_ratio must be in [0, 1], got {front_ratio}")
-    c = contact.astype(bool).reshape(4, -1)
-    n_front, n_rear = c[FRONT].sum(axis=0), c[~FRONT].sum(axis=0)
-    both = (n_front > 0) & (n_rear > 0)
-    w_front = np.where(both, front_ratio, (n_front > 0).astype(float)) * weight
-    w_rear = np.where(both, 1.0 - front_ratio, (n_rear > 0).astype(float)) * weight
-    per_front = w_front / np.maximum(n_front, 1)
-    per_rear = w_rear / np.maximum(n_rear, 1)
-    forces = c * np.where(FRONT[:, None], per_front[None, :], per_rear[None, :])
-    return forces.reshape(contact.shape)

@@ -21,461 +21,49 @@ run stopped by Ctrl-C or an exception leaves a readable log marked partial).
 from __future__ import annotations
 
 import math
-import platform
-import shutil
 import signal
 import threading
-import warnings
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from wbmpc import checks
 from wbmpc.control.arm_task import ArmReference, heading_frame, velocity_command
 from wbmpc.control.command_ramp import CommandRamp
 from wbmpc.control.delay import DelayEstimate, predict_state
-from wbmpc.control.diagnostics import FailureReporter
 from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCSolution, WholeBodyMPC
-from wbmpc.io.logs import LogWriter, RunLog, load_log, save_log
-from wbmpc.ocp.gait import Gait, GaitSchedule
 from wbmpc.ocp.time_grid import node_times
-from wbmpc.sim.disturbances import Disturbance, Kick, Push
-from wbmpc.sim.hardware import EstimatedState, HardwareProfile, PlannedContacts, estimate_errors
+from wbmpc.sim.disturbances import Kick, Push
+from wbmpc.sim.failure_reporter import FailureReporter
+from wbmpc.sim.hardware import EstimatedState, PlannedContacts, estimate_errors
+from wbmpc.sim.loop_config import ClosedLoopConfig
+from wbmpc.sim.loop_log import ClosedLoopLog, ClosedLoopResult
 from wbmpc.sim.motor_drive import MotorDrive
 from wbmpc.sim.plant import ContactPlant, fallen
-from wbmpc.sim.sensing import SensorNoise, StateSensor
+from wbmpc.sim.sensing import StateSensor
+from wbmpc.sim.summary import (
+    base_velocity_heading,
+    blasfeo_record,
+    command_tracking,
+    machine_description,
+    summarize,
+)
 
-
-@dataclass
-class ClosedLoopConfig:
-    """Settings of a closed-loop run.
-
-    Attributes:
-        duration: Simulated time [s].
-        mpc_rate: MPC update rate [Hz] (paper: 80).
-        low_level_rate: Interpolation + PD rate [Hz] (paper: 500).
-        plant_dt: Plant integration step [s]; must divide both control periods.
-        plant: ``"rigid"`` (Pinocchio forward dynamics, scheduled feet in rigid contact: the paper's
-            benchmark) or ``"pybullet"`` (a physics engine: contacts happen, feet can slip).
-        kp, kd: Joint PD gains of the low level [N m/rad], [N m s/rad] (paper, simulation without delay: 0).
-        joint_pd: Where the joint PD law runs: ``"controller"`` (the 500 Hz low level computes the torque
-            from the controller's state and the plant applies it, the paper's simulation) or ``"drive"``
-            (:class:`wbmpc.sim.motor_drive.MotorDrive`: the low level sends setpoints, feed-forward and
-            gains at 500 Hz and the motor drivers evaluate the law at every plant step on the joint
-            encoders, as Unitree's robots do; a hardware profile's torque latency then delays the
-            setpoints, not the damping loop).
-        friction_feedforward: When the MPC's robot carries a calibration (``load_b1_z1(calibration=...)``),
-            the low level adds its identified joint friction at the desired joint rates
-            (:class:`wbmpc.control.low_level.LowLevelController` ``friction``); False: never.
-        base_velocity: Commanded base linear velocity [m/s], heading frame, of the walking segments; a gait
-            schedule's segments may name their own (``trot@0.5:4``, :meth:`GaitSchedule.velocity_at`) and a
-            stand segment stands still unless it does.
-        base_yaw_rate: Commanded yaw rate [rad/s] (of the walking segments, as ``base_velocity``).
-        arm_reference: End-effector position reference (heading frame), or ``None`` for the ``ee_velocity``
-            command in ``ee_velocity_frame``.
-        arm_kp: Position gain [1/s] of the arm reference feedback (and of the heading-frame hold).
-        arm_preview: One end-effector velocity per MPC stage from the reference's future (True), or the
-            paper's single velocity held over the horizon (False).
-        ee_velocity: End-effector velocity command [m/s] used when there is no arm reference, in
-            ``ee_velocity_frame``: zero holds the hand still.
-        ee_velocity_frame: ``"heading"`` (default): ``ee_velocity`` is relative to the heading frame, which
-            carries the hand as the base walks and turns (a hold point moving at ``ee_velocity`` with
-            ``arm_kp`` feedback, so zero keeps the hand where it started relative to the body);
-            ``"world"``: ``ee_velocity`` is the hand's world velocity, held over the horizon (the paper's
-            command; zero pins the hand in the world, which a walking base cannot sustain for long: the
-            MPC's precheck ``ee_world_hold_with_walking_base`` says after how far).
-        ee_force: Commanded end-effector force [N], world.
-        max_tilt: Roll/pitch [rad] beyond which the run counts as a fall.
-        delay: Computation delay: ``"off"``, ``"measured"`` (the wall time of each whole
-            :meth:`~wbmpc.control.mpc.WholeBodyMPC.solve` call) or seconds.
-        mpc_schedule: When solves start: ``"ticks"`` (on the MPC rate's ticks, the first one after the
-            previous plan arrived: a solve slightly longer than a period halves the rate) or ``"free"`` (at
-            the first low-level tick after the previous plan arrived, but no sooner than one MPC period
-            after the previous solve started: an asynchronous MPC worker that restarts when it is done).
-        command_ramp: ``(linear [m/s^2], yaw [rad/s^2])`` acceleration limits of the base velocity command
-            (:class:`wbmpc.control.command_ramp.CommandRamp`), e.g. between a gait schedule's segments;
-            ``None``: commands change in steps.
-        delay_compensation: With a delay, plan from the state predicted for the time the plan will arrive
-            (:mod:`wbmpc.control.delay`: the measurement moved along the plan being executed by the
-            expected delay, the fixed one or a high quantile of the recent solve calls) instead of from the
-            measurement's own time.
-        sensor_noise: Measurement noise (``None``: ground truth).
-        velocity_cutoff_hz: Joint-velocity low-pass cut-off [Hz] (paper: 50; ``None``: unfiltered).
-        scene: PyBullet scene objects (:class:`~wbmpc.sim.pybullet_plant.Box`, ``Wall``, ``Payload``).
-        disturbances: :class:`~wbmpc.sim.disturbances.Kick` and ``Push`` events (PyBullet plant).
-        command_schedule: ``f(t) -> dict`` overriding commands over time: keys ``base_velocity``,
-            ``base_yaw_rate``, ``ee_velocity``, ``ee_force`` (values as the fields of the same names).
-        ground_friction: Ground friction coefficient of the PyBullet plant.
-        arm_gains: ``(kp, kd)`` of the arm joints if different from the legs' (e.g. a compliant arm).
-        gait: Gait or :class:`~wbmpc.ocp.gait.GaitSchedule` for this run (e.g.
-            ``parse_gait_schedule("stand:2,trot:6,stand:2")``), replacing the MPC's for its duration;
-            ``None`` keeps the MPC's. The one schedule decides the plant's contacts and the MPC's stage
-            contacts, evaluated in integer plant ticks.
-        state: What the MPC and the low level see: ``"ground_truth"`` (the plant's state through
-            ``sensor_noise`` and the velocity filter) or ``"estimated"`` (the state estimator
-            :class:`wbmpc.estimation.StateEstimator` at the low-level rate on synthesised IMU and encoder
-            readings, with the errors of ``hardware`` (exact without one), contacts from the MPC's contact
-            plan (the gait schedule with any swing aborted after a push), joint rates filtered at
-            ``velocity_cutoff_hz``). The log keeps both: ``q``, ``v`` true,
-            ``q_meas``, ``v_meas`` what the controller saw.
-        hardware: The emulated robot's mismatches (:class:`wbmpc.sim.hardware.HardwareProfile`; PyBullet
-            plant only): motor friction, armature, base centre-of-mass offset, torque latency, sensor errors
-            of the estimator. ``None``: the nominal robot. :func:`wbmpc.sim.hardware.hardware_config` also
-            sets the profile's controller settings.
-    """
-
-    duration: float = 10.0
-    mpc_rate: float = 80.0
-    low_level_rate: float = 500.0
-    plant_dt: float = 0.0005
-    plant: str = "rigid"
-    kp: float = 0.0
-    kd: float = 0.0
-    joint_pd: str = "controller"
-    friction_feedforward: bool = True
-    base_velocity: tuple[float, float, float] = (0.2, 0.0, 0.0)
-    base_yaw_rate: float = 0.0
-    arm_reference: ArmReference | None = field(default_factory=ArmReference)
-    arm_kp: float = 4.0
-    arm_preview: bool = True
-    ee_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    ee_velocity_frame: str = "heading"
-    ee_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    max_tilt: float = 1.0
-    delay: str | float = "off"
-    delay_compensation: bool = False
-    command_ramp: tuple[float, float] | None = None
-    mpc_schedule: str = "ticks"
-    sensor_noise: SensorNoise | None = None
-    velocity_cutoff_hz: float | None = None
-    scene: Sequence = ()
-    disturbances: Sequence[Disturbance] = ()
-    command_schedule: Callable[[float], dict] | None = None
-    ground_friction: float = 0.8
-    arm_gains: tuple[float, float] | None = None
-    gait: Gait | GaitSchedule | None = None
-    state: str = "ground_truth"
-    hardware: HardwareProfile | None = None
-
-    def __post_init__(self):
-        if self.gait is not None and not isinstance(self.gait, Gait | GaitSchedule):
-            raise ValueError(f"gait must be a Gait or GaitSchedule (wbmpc.ocp.gait), got {self.gait!r}")
-        if not (
-            self.delay in ("off", "measured") or (isinstance(self.delay, int | float) and self.delay >= 0)
-        ):
-            raise ValueError(f"delay must be 'off', 'measured' or seconds >= 0, got {self.delay!r}")
-        if self.plant not in ("rigid", "pybullet"):
-            raise ValueError(f"unknown plant {self.plant!r}; available: 'rigid', 'pybullet'")
-        if self.mpc_schedule not in ("ticks", "free"):
-            raise ValueError(
-                f"ClosedLoopConfig.mpc_schedule must be 'ticks' or 'free', got {self.mpc_schedule!r}"
-            )
-        if self.joint_pd not in ("controller", "drive"):
-            raise ValueError(
-                f"ClosedLoopConfig.joint_pd must be 'controller' or 'drive', got {self.joint_pd!r}"
-            )
-        if self.ee_velocity_frame not in ("heading", "world"):
-            raise ValueError(
-                "ClosedLoopConfig.ee_velocity_frame must be 'heading' or 'world', "
-                f"got {self.ee_velocity_frame!r}"
-            )
-        if self.plant == "rigid" and (self.scene or self.disturbances):
-            raise ValueError(
-                "scene objects and disturbances need plant='pybullet' (the rigid plant has none)"
-            )
-        for d in self.disturbances:
-            if not isinstance(d, Kick | Push):
-                raise ValueError(f"unknown disturbance {d!r}; use wbmpc.sim.disturbances.Kick or Push")
-        self._check_numbers()
-        self._check_state()
-
-    def _check_state(self) -> None:
-        if self.state not in ("ground_truth", "estimated"):
-            raise ValueError(f"state must be 'ground_truth' or 'estimated', got {self.state!r}")
-        if self.state == "estimated" and self.sensor_noise is not None:
-            raise ValueError("sensor_noise is for state='ground_truth'; estimator errors are in hardware")
-        if self.hardware is not None and not isinstance(self.hardware, HardwareProfile):
-            raise ValueError(f"hardware must be a HardwareProfile or None, got {self.hardware!r}")
-        if self.hardware is not None and self.plant != "pybullet":
-            raise ValueError("hardware (the emulated robot) needs plant='pybullet'")
-
-    def _check_numbers(self) -> None:
-        """Rates, durations, gains and commands: finite, in range, right size (issue 12)."""
-        name = "ClosedLoopConfig."
-        for key, unit in (("duration", "s"), ("mpc_rate", "Hz"), ("low_level_rate", "Hz"), ("plant_dt", "s")):
-            checks.number(name + key, getattr(self, key), low=0.0, low_open=True, unit=unit)
-        if self.duration < self.plant_dt:
-            raise ValueError(
-                f"ClosedLoopConfig.duration = {self.duration} s is shorter than one plant step "
-                f"(plant_dt = {self.plant_dt} s): nothing would be simulated"
-            )
-        if self.low_level_rate < self.mpc_rate:
-            raise ValueError(
-                f"ClosedLoopConfig.low_level_rate ({self.low_level_rate} Hz) must be >= mpc_rate "
-                f"({self.mpc_rate} Hz): the low level interpolates each MPC plan"
-            )
-        for key in ("kp", "kd", "arm_kp", "ground_friction"):
-            checks.number(name + key, getattr(self, key), low=0.0)
-        if self.arm_gains is not None:
-            gains = checks.vector(name + "arm_gains", self.arm_gains, 2)
-            if np.any(gains < 0):
-                raise ValueError(f"ClosedLoopConfig.arm_gains (kp, kd) must be >= 0, got {self.arm_gains!r}")
-        checks.number(name + "max_tilt", self.max_tilt, low=0.0, low_open=True, unit="rad")
-        checks.number(name + "base_yaw_rate", self.base_yaw_rate, unit="rad/s")
-        for key in ("base_velocity", "ee_velocity", "ee_force"):
-            checks.vector(name + key, getattr(self, key), 3)
-        if isinstance(self.delay, int | float) and not isinstance(self.delay, bool):
-            checks.number(name + "delay", self.delay, low=0.0, unit="s")
-        if self.command_ramp is not None:
-            limits = checks.vector(name + "command_ramp", self.command_ramp, 2)
-            if np.any(limits <= 0):
-                raise ValueError(
-                    f"{name}command_ramp (linear, yaw) limits must be > 0, got {self.command_ramp!r}"
-                )
-        if self.velocity_cutoff_hz is not None:
-            cutoff = self.velocity_cutoff_hz
-            checks.number(name + "velocity_cutoff_hz", cutoff, low=0.0, low_open=True, unit="Hz")
-        if self.arm_reference is not None and not isinstance(self.arm_reference, ArmReference):
-            raise ValueError(
-                f"ClosedLoopConfig.arm_reference must be an ArmReference or None, got {self.arm_reference!r}"
-            )
-        if self.sensor_noise is not None and not isinstance(self.sensor_noise, SensorNoise):
-            raise ValueError(
-                f"ClosedLoopConfig.sensor_noise must be a SensorNoise or None, got {self.sensor_noise!r}"
-            )
-        if self.command_schedule is not None and not callable(self.command_schedule):
-            raise ValueError(
-                "ClosedLoopConfig.command_schedule must be a function f(t) -> dict, "
-                f"got {self.command_schedule!r}"
-            )
-        for d in self.disturbances:
-            start = d.time if isinstance(d, Kick) else d.start
-            if start >= self.duration:
-                warnings.warn(
-                    f"{d!r} starts at {start} s, after the end of the run (duration {self.duration} s): "
-                    "it is never applied; lengthen the run or move it earlier",
-                    stacklevel=4,
-                )
-
-    def steps(self) -> tuple[int, int, int]:
-        """Total plant steps, plant steps per MPC update and per low-level update."""
-        self.__post_init__()  # fields may have changed since construction
-        per_mpc = round(1.0 / (self.mpc_rate * self.plant_dt))
-        per_low = round(1.0 / (self.low_level_rate * self.plant_dt))
-        if (
-            abs(per_mpc * self.plant_dt * self.mpc_rate - 1) > 1e-9
-            or abs(per_low * self.plant_dt * self.low_level_rate - 1) > 1e-9
-        ):
-            raise ValueError(
-                f"plant_dt={self.plant_dt} s must divide the MPC period 1/{self.mpc_rate} s and the "
-                f"low-level period 1/{self.low_level_rate} s"
-            )
-        return round(self.duration / self.plant_dt), per_mpc, per_low
-
-
-@dataclass
-class ClosedLoopLog:
-    """Time series of a run (low-level rate) and per-solve records (MPC rate).
-
-    Held in memory by default. A streamed log (:meth:`streaming`) writes its rows to disk every
-    ``chunk_steps`` plant steps (:class:`wbmpc.io.logs.LogWriter`) and empties its lists, per-solve
-    ``timings`` included (``plans`` are not kept); after the run :attr:`path` is the consolidated ``.npz``
-    log, and :meth:`arrays` and :meth:`run_log` read it from there.
-    """
-
-    t: list = field(default_factory=list)
-    q: list = field(default_factory=list)
-    v: list = field(default_factory=list)
-    tau: list = field(default_factory=list)
-    tau_ff: list = field(default_factory=list)
-    contact: list = field(default_factory=list)
-    ee_position: list = field(default_factory=list)
-    ee_reference: list = field(default_factory=list)
-    solve_t: list = field(default_factory=list)
-    solve_time: list = field(default_factory=list)
-    iterations: list = field(default_factory=list)
-    success: list = field(default_factory=list)
-    fallback: list = field(default_factory=list)
-    violation: list = field(default_factory=list)
-    status: list = field(default_factory=list)
-    reason: list = field(default_factory=list)
-    ee_command: list = field(default_factory=list)
-    timings: list = field(default_factory=list)
-    plans: list = field(default_factory=list)
-    q_meas: list = field(default_factory=list)
-    v_meas: list = field(default_factory=list)
-    contact_sim: list = field(default_factory=list)
-    foot_forces: list = field(default_factory=list)
-    ee_force_sim: list = field(default_factory=list)
-    base_velocity_cmd: list = field(default_factory=list)
-    base_yaw_rate_cmd: list = field(default_factory=list)
-    ee_force_cmd: list = field(default_factory=list)
-    apply_t: list = field(default_factory=list)
-    plan_q: list = field(default_factory=list)
-    plan_v: list = field(default_factory=list)
-    plan_tau: list = field(default_factory=list)
-    plan_forces: list = field(default_factory=list)
-    scene_positions: list = field(default_factory=list)
-    foot_height: list = field(default_factory=list)
-    plan_contact: list = field(default_factory=list)
-    hold: list = field(default_factory=list)
-    path: Path | None = field(default=None, repr=False)  # the .npz log on disk, once a streamed run ends
-    writer: LogWriter | None = field(default=None, repr=False)  # streaming: where the chunks go
-    chunk_steps: int = 0  # streaming: plant steps per chunk
-    summarize: Callable[[Mapping], dict] | None = field(default=None, repr=False)  # set by the run
-
-    SOLVE_COLUMNS = (
-        "solve_t",
-        "apply_t",
-        "solve_time",
-        "iterations",
-        "success",
-        "fallback",
-        "violation",
-        "status",
-        "reason",
-        "ee_command",
-        "plan_q",
-        "plan_v",
-        "plan_tau",
-        "plan_forces",
-        "plan_contact",
-        "hold",
-    )
-
-    @classmethod
-    def streaming(cls, path, chunk_steps: int, meta: dict | None = None) -> ClosedLoopLog:
-        """A log written to ``path`` (``.npz``) in chunks of ``chunk_steps`` plant steps as the run goes."""
-        if chunk_steps < 1:
-            raise ValueError(f"a log chunk must hold at least one plant step, got {chunk_steps}")
-        return cls(writer=LogWriter(path, meta), chunk_steps=chunk_steps)
-
-    @classmethod
-    def columns(cls) -> tuple[str, ...]:
-        """Names of the logged series (list fields; ``plans`` and per-solve ``timings`` dicts excluded)."""
-        skip = ("plans", "timings")
-        return tuple(f.name for f in fields(cls) if f.default_factory is list and f.name not in skip)
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """Every series as a numpy array (read from disk for a streamed log; empty if never logged)."""
-        if self.path is not None:
-            run = load_log(self.path)
-            return {k: np.asarray([]) for k in self.columns()} | run.solves | run.signals
-        return {k: np.asarray(getattr(self, k)) for k in self.columns()}
-
-    def run_log(self, meta: dict | None = None) -> RunLog:
-        """The columnar log (:class:`wbmpc.io.logs.RunLog`): low-level-rate signals, one row per solve."""
-        if self.path is not None:
-            run = load_log(self.path)
-            run.meta |= dict(meta or {})
-            return run
-        arrays = self.arrays()
-        n_solves = len(self.solve_t)
-        solves = {k: arrays[k] for k in self.SOLVE_COLUMNS if len(arrays[k]) == n_solves}
-        solves["status"] = np.asarray([str(x) for x in self.status], dtype=str)
-        solves["reason"] = np.asarray([str(x) for x in self.reason], dtype=str)
-        skip = set(self.SOLVE_COLUMNS)
-        signals = {k: v for k, v in arrays.items() if k not in skip and len(v) == len(self.t)}
-        return RunLog(signals=signals, solves=solves, meta=dict(meta or {}))
-
-    def tick(self, step: int) -> None:
-        """Called at each plant step before anything of it is logged: a streamed log writes a chunk."""
-        if self.writer is not None and step and step % self.chunk_steps == 0:
-            self.flush()
-
-    def flush(self) -> None:
-        """Write the rows held in memory as the next chunk and empty every list (streamed log)."""
-        self.writer.write_chunk(self.run_log())
-        for name in (*self.columns(), "plans", "timings"):
-            getattr(self, name).clear()
-
-    def finish(self, summarize: Callable[[Mapping], dict], interrupted: str | None = None) -> dict | None:
-        """End of the run: its summary, from memory or (streamed) from the consolidated log on disk.
-
-        Args:
-            summarize: ``f(columns) -> summary`` (columns by name, as :meth:`arrays`).
-            interrupted: What stopped a streamed run early (stored in its ``meta``), or ``None``.
-        """
-        if self.writer is None:
-            return summarize(self.arrays())
-        if interrupted is not None:
-            self._trim_unfinished_rows()
-        self.flush()
-        names = self.columns()
-        meta = self.writer.close(lambda columns: summarize(_Columns(columns, names)), interrupted)
-        self.path, self.writer = self.writer.path, None
-        return meta.get("summary")
-
-    def abort(self, exc: BaseException) -> None:
-        """An exception stopped the run: a streamed log writes what it has, marked partial (then re-raise)."""
-        if self.writer is None or self.writer.closed:
-            return
-        what = f"{type(exc).__name__}: {exc}"
-        if isinstance(exc, KeyboardInterrupt):
-            what = "KeyboardInterrupt (Ctrl-C)"
-        try:
-            self.finish(self.summarize or (lambda columns: None), interrupted=what)
-        except Exception as error:  # noqa: BLE001 - the original exception is the one to raise
-            exc.add_note(f"the partial log {self.writer.path} could not be written: {error!r}")
-
-    def _trim_unfinished_rows(self) -> None:
-        """Drop the rows an interruption left half-appended (a table's columns end at its shortest)."""
-        solve_columns = [k for k in self.SOLVE_COLUMNS if getattr(self, k)]
-        signal_columns = [k for k in self.columns() if k not in self.SOLVE_COLUMNS and getattr(self, k)]
-        for names in (solve_columns, signal_columns):
-            n = min((len(getattr(self, k)) for k in names), default=0)
-            for k in names:
-                del getattr(self, k)[n:]
-        del self.timings[len(self.solve_t) :]
-        del self.plans[len(self.solve_t) :]
-
-
-class _Columns(Mapping):
-    """Columns read from disk, with the log's never-filled series as empty arrays (as in memory)."""
-
-    def __init__(self, columns: Mapping, names: Sequence[str]):
-        self._columns, self._names = columns, tuple(names)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name in self._columns:
-            return self._columns[name]
-        if name in self._names:
-            return np.asarray([])
-        raise KeyError(name)
-
-    def __iter__(self):
-        return iter(dict.fromkeys((*self._names, *self._columns)))
-
-    def __len__(self) -> int:
-        return len(dict.fromkeys((*self._names, *self._columns)))
-
-
-@dataclass
-class ClosedLoopResult:
-    log: ClosedLoopLog
-    summary: dict
-    fell: bool
-
-    def run_log(self) -> RunLog:
-        """The columnar log with the summary as metadata."""
-        return self.log.run_log({"summary": self.summary})
-
-    def save(self, path) -> str:
-        """Write the columnar log (``.npz``, see :mod:`wbmpc.io.logs`); returns the path.
-
-        A streamed run's log is already on disk (``result.log.path``): it is copied.
-        """
-        if self.log.path is None:
-            return str(save_log(self.run_log(), path))
-        target = Path(path) if Path(path).suffix == ".npz" else Path(f"{path}.npz")
-        if target.resolve() != self.log.path.resolve():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(self.log.path, target)
-        return str(target)
+__all__ = [
+    "ClosedLoopConfig",
+    "ClosedLoopLog",
+    "ClosedLoopResult",
+    "base_velocity_heading",
+    "blasfeo_record",
+    "command_tracking",
+    "machine_description",
+    "make_plant",
+    "run_closed_loop",
+    "summarize",
+]
 
 
 def run_closed_loop(
@@ -569,7 +157,6 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     model, data = robot.model, robot.model.createData()
     n_steps, per_mpc, per_low = config.steps()
     plant = make_plant(robot, config)
-    pybullet = config.plant == "pybullet"
     q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
     state = plant.reset(q0, np.zeros(model.nv))
     kp, kd = _joint_gains(robot, config)
@@ -623,7 +210,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
     next_solve = 0  # plant step of the next MPC tick
     contacts_from = 0  # plant step at which period_contacts begins
     cmd = _commands(config, 0.0, schedule)
-    scene_names = plant.body_names if pybullet else []
+    scene_names = plant.body_names
     reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
 
     def run_summary(columns: Mapping, fell: bool) -> dict:  # columns from memory or the streamed file
@@ -758,8 +345,8 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             log.tau.append(tau.copy())
             log.tau_ff.append(low.last_reference.tau_ff)
             log.contact.append(contact)
-            log.contact_sim.append(plant.foot_contacts() if pybullet else np.asarray(contact, bool))
-            log.foot_forces.append(plant.contact_forces() if pybullet else plant.last_contact_forces)
+            log.contact_sim.append(plant.foot_contacts(contact))
+            log.foot_forces.append(plant.contact_forces())
             log.foot_height.append(plant.foot_positions[:, 2] - robot.foot_radius)
             log.base_velocity_cmd.append(cmd["base_velocity"])
             log.base_yaw_rate_cmd.append(cmd["base_yaw_rate"])
@@ -767,7 +354,7 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if ee_id is not None:  # only the end-effector frame is needed here
                 pin.forwardKinematics(model, data, q)
                 log.ee_position.append(pin.updateFramePlacement(model, data, ee_id).translation.copy())
-                log.ee_force_sim.append(plant.ee_contact_force() if pybullet else np.zeros(3))
+                log.ee_force_sim.append(plant.ee_contact_force())
             else:
                 log.ee_position.append(np.full(3, np.nan))
                 log.ee_force_sim.append(np.zeros(3))
@@ -783,18 +370,14 @@ def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=No
             if step in kicks:
                 state = plant.apply_base_velocity_kick(np.asarray(kicks[step].delta_v, dtype=float))
             wrench, ee_force = _push_forces(pushes, t)
-            if pybullet:
-                state = plant.step(tau, contact, external_wrench=wrench, ee_force=ee_force)
-            else:
-                state = plant.step(tau, contact)
+            state = plant.step(tau, contact, external_wrench=wrench, ee_force=ee_force)
         except FloatingPointError:
             fell = True
             break
     if bar is not None:
         bar.close()
     summary = log.finish(lambda columns: run_summary(columns, fell))
-    if hasattr(plant, "close"):
-        plant.close()
+    plant.close()
     return ClosedLoopResult(log=log, summary=summary, fell=fell)
 
 
@@ -896,182 +479,3 @@ def _progress(total: int, enabled: bool):
     from tqdm.auto import tqdm
 
     return tqdm(total=total, desc="MPC", unit="solve")
-
-
-def tilt(q: np.ndarray) -> float:
-    """Angle [rad] between the base z axis and the world z axis (roll/pitch combined)."""
-    qx, qy = q[3], q[4]
-    return float(np.arccos(np.clip(1 - 2 * (qx**2 + qy**2), -1.0, 1.0)))
-
-
-def machine_description() -> str:
-    """CPU model and core count, for benchmark records."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    import os
-
-    system = f"{platform.system()} {platform.release()}"
-    return f"{cpu}, {os.cpu_count()} cores, {system}, Python {platform.python_version()}"
-
-
-def blasfeo_record() -> dict:
-    """Which BLASFEO Fatrop ran on (see :mod:`wbmpc.solver.blasfeo`), for run summaries."""
-    from wbmpc.solver import blasfeo
-
-    info = blasfeo.info()
-    return {k: info.get(k) for k in ("choice", "reason", "library", "target", "library_features")}
-
-
-def summarize(
-    mpc: WholeBodyMPC,
-    log: ClosedLoopLog | Mapping[str, np.ndarray],
-    config: ClosedLoopConfig,
-    fell: bool,
-    torque_violations: int,
-    plant: ContactPlant | None = None,
-) -> dict:
-    """Key numbers of a run: solve-time statistics (in-process), convergence, tracking, safety.
-
-    ``log`` is the run's log or its columns by name (:meth:`ClosedLoopLog.arrays`).
-    """
-    arrays = log if isinstance(log, Mapping) else log.arrays()
-    solve_ms = 1e3 * arrays["solve_time"]
-    warm = solve_ms[1:] if solve_ms.size > 1 else solve_ms
-    iters = arrays["iterations"][1:] if arrays["iterations"].size > 1 else arrays["iterations"]
-    ee_err = (
-        np.linalg.norm(arrays["ee_position"] - arrays["ee_reference"], axis=1)
-        if len(arrays["t"])
-        else np.array([])
-    )
-    ee_err = ee_err[np.isfinite(ee_err)]
-    q = arrays["q"]
-    summary = {
-        "robot": mpc.robot.name,
-        "gait": mpc.config.gait.name,
-        "solver": mpc.config.solver,
-        "compiled": mpc.config.compiled,
-        "plant": config.plant,
-        "nodes": mpc.n_nodes,
-        "duration_s": float(arrays["t"][-1]) if len(arrays["t"]) else 0.0,
-        "requested_duration_s": config.duration,
-        "base_velocity_cmd": list(config.base_velocity),
-        "mpc_solves": int(len(solve_ms)),
-        "solve_ms": {
-            "median": float(np.median(warm)) if warm.size else None,
-            "p95": float(np.percentile(warm, 95)) if warm.size else None,
-            "max": float(np.max(warm)) if warm.size else None,
-            "mean": float(np.mean(warm)) if warm.size else None,
-            "std": float(np.std(warm)) if warm.size else None,
-            "cold_start": float(solve_ms[0]) if solve_ms.size else None,
-        },
-        "cold_start_iterations": int(arrays["iterations"][0]) if arrays["iterations"].size else None,
-        "iterations_mean": float(np.mean(iters)) if iters.size else None,
-        "iterations_max": int(np.max(iters)) if iters.size else None,
-        "converged_fraction": float(np.mean(arrays["success"])) if arrays["success"].size else 0.0,
-        "fallbacks": int(np.sum(arrays["fallback"])),
-        "constraint_violation": {
-            "median": float(np.median(arrays["violation"])) if arrays["violation"].size else None,
-            "max": float(np.max(arrays["violation"])) if arrays["violation"].size else None,
-        },
-        "ee_rms_m": float(np.sqrt(np.mean(ee_err**2))) if ee_err.size else None,
-        "ee_max_error_m": float(np.max(ee_err)) if ee_err.size else None,
-        "max_tilt_rad": float(max(tilt(qi) for qi in q)) if len(q) else None,
-        "base_height_range_m": [float(q[:, 2].min()), float(q[:, 2].max())] if len(q) else None,
-        "distance_travelled_m": float(np.linalg.norm(q[-1, :2] - q[0, :2])) if len(q) else None,
-        "torque_violations": int(torque_violations),
-        "fell": bool(fell),
-        "low_level": {
-            "kp": config.kp,
-            "kd": config.kd,
-            "arm_gains": list(config.arm_gains) if config.arm_gains is not None else None,
-            "rate_hz": config.low_level_rate,
-        },
-        "delay": config.delay,
-        "sensor_noise": None if config.sensor_noise is None else vars(config.sensor_noise),
-        "velocity_cutoff_hz": config.velocity_cutoff_hz,
-        "mpc_rate_hz": config.mpc_rate,
-        "plant_dt_s": config.plant_dt,
-        "machine": machine_description(),
-        "blasfeo": blasfeo_record(),
-    }
-    if plant is not None:
-        summary["contact_violations"] = {k: int(np.sum(v)) for k, v in plant.violation_counts.items()}
-        summary["contact_violations_counted_as"] = (
-            "plant steps x feet: stance foot pulling / outside the friction cone; swing foot more than "
-            "0.1 mm below the ground"
-        )
-    summary |= _contact_summary(mpc, arrays)
-    summary["tracking"] = command_tracking(arrays)
-    return summary
-
-
-def base_velocity_heading(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Base velocity (T, 3) in the heading frame: forward [m/s], left [m/s], yaw rate [rad/s], from
-    configurations (T, nq) and velocities (T, nv) (base-frame twist, Pinocchio's free-flyer convention)."""
-    q, v = np.atleast_2d(q), np.atleast_2d(v)
-    out = np.empty((len(q), 3))
-    for k, (qk, vk) in enumerate(zip(q, v, strict=True)):
-        R = pin.Quaternion(qk[3:7]).normalized().toRotationMatrix()
-        linear, angular = R @ vk[0:3], R @ vk[3:6]
-        yaw = np.arctan2(R[1, 0], R[0, 0])
-        c, s = np.cos(yaw), np.sin(yaw)
-        out[k] = (c * linear[0] + s * linear[1], -s * linear[0] + c * linear[1], angular[2])
-    return out
-
-
-def command_tracking(arrays: Mapping[str, np.ndarray], settle: float = 1.0) -> list[dict]:
-    """Commanded against achieved base velocity over each stretch of constant command.
-
-    Args:
-        arrays: The run's columns (``t``, ``q``, ``v``, ``base_velocity_cmd``, ``base_yaw_rate_cmd``).
-        settle: Time [s] after each change of command left out of the averages.
-
-    Returns:
-        One dict per stretch: ``t_start``, ``t_end`` [s] (the averaged window), ``commanded`` and
-        ``achieved`` ``[forward m/s, left m/s, yaw rate rad/s]`` (heading frame, signed, true state), and
-        ``ratio`` (achieved / commanded per component, ``None`` where the command is 0).
-    """
-    t = np.asarray(arrays["t"], float)
-    if t.size < 2 or not len(arrays.get("base_velocity_cmd", ())):
-        return []
-    linear = np.asarray(arrays["base_velocity_cmd"], float)[:, :2]
-    cmd = np.column_stack([linear, np.asarray(arrays["base_yaw_rate_cmd"], float)])
-    achieved = base_velocity_heading(arrays["q"], arrays["v"])
-    change = np.flatnonzero(np.any(np.abs(np.diff(cmd, axis=0)) > 1e-12, axis=1)) + 1
-    out = []
-    for start, end in zip(np.r_[0, change], np.r_[change, t.size], strict=True):
-        window = t[start:end] >= t[start] + settle
-        if window.sum() < 2:
-            continue
-        c, a = cmd[start], achieved[start:end][window].mean(axis=0)
-        out.append(
-            {
-                "t_start": float(t[start:end][window][0]),
-                "t_end": float(t[start:end][window][-1]),
-                "commanded": c.tolist(),
-                "achieved": a.tolist(),
-                "ratio": [float(ai / ci) if abs(ci) > 1e-9 else None for ai, ci in zip(a, c, strict=True)],
-            }
-        )
-    return out
-
-
-def _contact_summary(mpc: WholeBodyMPC, arrays: dict) -> dict:
-    """Swing-foot clearance and agreement of the MPC's first-stage contacts with the plant's schedule."""
-    out = {"holds": int(np.sum(arrays["hold"])) if arrays["hold"].size else 0}
-    if arrays["foot_height"].size:
-        swing = ~np.asarray(arrays["contact"], bool)
-        heights = arrays["foot_height"][swing]
-        out["swing_foot_min_height_m"] = float(heights.min()) if heights.size else None
-    if arrays["plan_contact"].size:
-        fresh = np.asarray(arrays["success"], bool) & ~np.asarray(arrays["fallback"], bool)
-        plant = mpc.config.gait.sample(arrays["solve_t"]).contact.T
-        out["node0_contact_mismatches"] = int(np.sum(np.any(arrays["plan_contact"] != plant, axis=1) & fresh))
-    return out

@@ -1,6 +1,6 @@
 """An emulated robot: the PyBullet plant with the errors of hardware, and the state estimator in the loop.
 
-On the robot the MPC differs from the simulation in ways its model does not know about (project issue 13):
+On the robot the MPC differs from the simulation in ways its model does not know about:
 the motors have friction and rotor inertia, the base centre of mass sits far from the model's (the B1's
 rear legs carry about 60 % of the weight), torque commands arrive a few milliseconds late, nothing measures
 the floating base (a state estimator reconstructs it from a noisy, biased IMU and noisy encoders) and the
@@ -12,14 +12,15 @@ Two ways to use it:
 * ``ClosedLoopConfig(plant="pybullet", hardware=profile, state="estimated")`` applies the robot side of a
   profile: the plant's friction, armature, centre-of-mass offset and latency, and the IMU and encoder
   errors the estimator reads (``state="estimated"``); every controller setting stays the config's own.
-* :func:`hardware_config` is the preset: the same plus the controller settings of the profile (estimated
-  state, measured computation delay, the hardware low-level gains, the 50 Hz joint-velocity filter) and
-  the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on Unitree's robots) and
-  the computation-delay compensation (:mod:`wbmpc.control.delay`) and acceleration-limited velocity
+* :func:`wbmpc.sim.presets.hardware_config` is the preset: the same plus the controller settings of the
+  profile (estimated state, measured computation delay, the hardware low-level gains, the 50 Hz
+  joint-velocity filter), the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on
+  Unitree's robots), the computation-delay compensation (:mod:`wbmpc.control.delay`) and
+  acceleration-limited velocity
   commands (0.3 m/s^2, 0.5 rad/s^2, :mod:`wbmpc.control.command_ramp`),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
-What the mismatches do to the MPC (issue 13, ``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
+What the mismatches do to the MPC (``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
 
 * Without the rotor inertia, the 3 ms torque latency (and, less, the sensor noise) destabilises the legs'
   damping loop ``Kd (v_des - v)`` behind the 50 Hz filter in swing: calf speeds beyond their limits, torques
@@ -56,13 +57,13 @@ from wbmpc.estimation import (
     contact_trust,
     synthesize_imu,
 )
+from wbmpc.model.quaternion import base_z_axis
 
 __all__ = [
     "EstimatedState",
     "PlannedContacts",
     "HardwareProfile",
     "estimate_errors",
-    "hardware_config",
     "rear_leg_share",
 ]
 
@@ -207,36 +208,6 @@ class HardwareProfile:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
 
 
-def hardware_config(profile: HardwareProfile | None = None, **overrides):
-    """The "hardware" preset: a PyBullet closed loop on the emulated robot with the profile's controller.
-
-    Args:
-        profile: The emulated robot (default: :class:`HardwareProfile` with its documented values).
-        **overrides: Any other :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig` field (duration, gait, ...),
-            including the preset's own (``kp``, ``kd``, ``arm_gains``, ``delay``, ``state``, ...).
-
-    Returns:
-        A :class:`~wbmpc.sim.closed_loop.ClosedLoopConfig`.
-    """
-    from wbmpc.sim.closed_loop import ClosedLoopConfig
-
-    profile = profile or HardwareProfile()
-    preset = {
-        "plant": "pybullet",
-        "hardware": profile,
-        "state": profile.state,
-        "delay": profile.delay,
-        "kp": profile.leg_gains[0],
-        "kd": profile.leg_gains[1],
-        "arm_gains": tuple(profile.arm_gains),
-        "velocity_cutoff_hz": profile.velocity_cutoff_hz,
-        "joint_pd": "drive",
-        "delay_compensation": True,
-        "command_ramp": (0.3, 0.5),
-    }
-    return ClosedLoopConfig(**(preset | overrides))
-
-
 class PlannedContacts:
     """A contact plan ``plan(times) -> (n_feet, n)`` flags seen as a gait schedule (``contact(t)``,
     ``sample(times).contact``), e.g. :meth:`wbmpc.control.mpc.WholeBodyMPC.contact_plan`: the schedule with
@@ -318,8 +289,8 @@ def estimate_errors(q: np.ndarray, v: np.ndarray, q_hat: np.ndarray, v_hat: np.n
     """
     dz = q_hat[:, 2] - q[:, 2]
     dv = np.linalg.norm(v_hat[:, :3] - v[:, :3], axis=1)
-    z_true = _base_z(q)
-    z_hat = _base_z(q_hat)
+    z_true = base_z_axis(q)
+    z_hat = base_z_axis(q_hat)
     tilt = np.arccos(np.clip(np.sum(z_true * z_hat, axis=1), -1.0, 1.0))
     return {
         "height_max_m": float(np.max(np.abs(dz))),
@@ -336,9 +307,3 @@ def rear_leg_share(foot_forces: np.ndarray, rear: tuple[int, ...] = (2, 3)) -> f
     """Share of the total vertical foot force carried by the rear feet (forces (..., n_feet, 3) [N])."""
     fz = np.asarray(foot_forces, dtype=float)[..., 2].reshape(-1, np.shape(foot_forces)[-2]).sum(axis=0)
     return float(fz[list(rear)].sum() / fz.sum())
-
-
-def _base_z(q: np.ndarray) -> np.ndarray:
-    """World z axis of the base (T, 3) from quaternions (x, y, z, w) in ``q[:, 3:7]``."""
-    x, y, z, w = (q[:, 3 + i] / np.linalg.norm(q[:, 3:7], axis=1) for i in range(4))
-    return np.stack([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)], axis=1)

@@ -24,6 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from wbmpc import checks
+from wbmpc.model.quaternion import tilt
+
 __all__ = ["ContactPlant", "PlantState", "fallen"]
 
 _VIOLATION_KINDS = ("pulling", "slipping", "penetrating")
@@ -59,8 +62,10 @@ class _ContactPattern:
 
 
 class Plant:
-    """What the closed loop reads from any plant; subclasses set ``_model``, ``_dt`` and ``_foot_names``
-    and implement ``reset(q, v, t)`` and ``step(tau_joints, contact, external_wrench)``."""
+    """The plant protocol: what the closed loop calls on any plant (the rigid-contact plant, PyBullet, the
+    emulated robot). Subclasses set ``_model``, ``_dt`` and ``_foot_names`` and implement :meth:`reset`,
+    :meth:`step`, :meth:`contact_forces` and :attr:`foot_positions`; the rest has defaults for a plant
+    without a scene (no bodies, no end-effector contact)."""
 
     _model: pin.Model
     _dt: float
@@ -90,6 +95,53 @@ class Plant:
     def foot_frames(self) -> tuple[str, ...]:
         """Foot frame names, in the order of the contact flags and force arrays."""
         return self._foot_names
+
+    def reset(self, q: np.ndarray, v: np.ndarray, t: float = 0.0) -> PlantState:
+        """Put the robot at configuration ``q`` (nq,) and velocity ``v`` (nv,) at time ``t`` [s]."""
+        raise NotImplementedError
+
+    def step(
+        self,
+        tau_joints: np.ndarray,
+        contact: np.ndarray,
+        external_wrench: np.ndarray | None = None,
+        ee_force: np.ndarray | None = None,
+    ) -> PlantState:
+        """Advance one step ``dt`` with the joint torques [N m] (nv - 6,) held constant; ``contact`` (n_feet,)
+        is the scheduled stance (imposed by a rigid-contact plant, ignored where contacts come from the
+        physics); ``external_wrench`` (6,) [N, N m] on the base and ``ee_force`` (3,) [N] on the end
+        effector are disturbances (world axes)."""
+        raise NotImplementedError
+
+    def contact_forces(self) -> np.ndarray:
+        """World forces of the ground on the feet during the last step [N], shape (n_feet, 3)."""
+        raise NotImplementedError
+
+    @property
+    def foot_positions(self) -> np.ndarray:
+        """World positions of the foot frames at the current state [m], shape (n_feet, 3)."""
+        raise NotImplementedError
+
+    def foot_contacts(self, scheduled: np.ndarray | None = None) -> np.ndarray:
+        """Feet on the ground, shape (n_feet,) bool. A plant that imposes its contacts returns ``scheduled``
+        (the stance about to be applied), one that simulates them what the physics gives."""
+        raise NotImplementedError
+
+    def ee_contact_force(self) -> np.ndarray:
+        """World force [N] of the scene on the end effector during the last step, shape (3,): zero here."""
+        return np.zeros(3)
+
+    @property
+    def body_names(self) -> list[str]:
+        """Names of the scene bodies (none here)."""
+        return []
+
+    def body_pose(self, name: str):
+        """Position and orientation of a scene body; a plant without a scene has none."""
+        raise ValueError(f"no scene body {name!r}: this plant has no scene")
+
+    def close(self) -> None:
+        """Release what the plant holds (a physics client); nothing here."""
 
 
 class ContactPlant(Plant):
@@ -260,6 +312,16 @@ class ContactPlant(Plant):
         """
         return self._forces.copy()
 
+    def contact_forces(self) -> np.ndarray:
+        """World forces of the ground on the feet during the last step [N], shape (n_feet, 3) (zero rows
+        for swing feet): :attr:`last_contact_forces`."""
+        return self.last_contact_forces
+
+    def foot_contacts(self, scheduled: np.ndarray | None = None) -> np.ndarray:
+        """The stance this plant imposes: ``scheduled`` if given (the flags about to be applied), else
+        those of the last step; shape (n_feet,) bool."""
+        return np.asarray(self.contact if scheduled is None else scheduled, dtype=bool).copy()
+
     @property
     def last_impulses(self) -> np.ndarray:
         """World-frame touchdown impulses applied in the last step [N s], shape (n_feet, 3) (zero if none)."""
@@ -297,8 +359,8 @@ class ContactPlant(Plant):
         Raises:
             ValueError: On a wrong shape or a non-finite value in ``q``, ``v`` or ``t``.
         """
-        q = _finite_vector(q, self._model.nq, "q")
-        v = _finite_vector(v, self._model.nv, "v")
+        q = checks.array("q", q, self._model.nq)
+        v = checks.array("v", v, self._model.nv)
         if not np.isfinite(t):
             raise ValueError(f"t must be finite, got {t}")
         q = pin.normalize(self._model, q)
@@ -318,7 +380,11 @@ class ContactPlant(Plant):
         return self.state
 
     def step(
-        self, tau_joints: np.ndarray, contact: np.ndarray, external_wrench: np.ndarray | None = None
+        self,
+        tau_joints: np.ndarray,
+        contact: np.ndarray,
+        external_wrench: np.ndarray | None = None,
+        ee_force: np.ndarray | None = None,
     ) -> PlantState:
         """Advance the plant by one step ``dt`` with the joint torques held constant.
 
@@ -327,6 +393,7 @@ class ContactPlant(Plant):
             contact: Stance flags, shape (n_feet,) bool (or 0/1), in the order of ``foot_frames``.
             external_wrench: Optional disturbance on the base, shape (6,): force [N] then torque [N m], with
                 world-aligned axes, applied at (and taken about) the base joint origin.
+            ee_force: Must be ``None``: the rigid plant has no scene to push the end effector.
 
         Returns:
             The state after the step (a copy).
@@ -335,14 +402,16 @@ class ContactPlant(Plant):
             ValueError: On a wrong shape or a non-finite value in an argument.
             FloatingPointError: If the dynamics produce a non-finite state (e.g. absurd torques).
         """
+        if ee_force is not None:
+            raise ValueError("the rigid-contact plant has no scene: ee_force needs the PyBullet plant")
         model, n = self._model, self._n_feet
         tau = self._tau
-        tau[6:] = _finite_vector(tau_joints, model.nv - 6, "tau_joints")
+        tau[6:] = checks.array("tau_joints", tau_joints, model.nv - 6)
         contact = _contact_flags(contact, n)
         if external_wrench is None:
             tau[:6] = 0.0
         else:
-            wrench = _finite_vector(external_wrench, 6, "external_wrench")
+            wrench = checks.array("external_wrench", external_wrench, 6)
             rot = pin.Quaternion(self._q[3:7]).toRotationMatrix()  # base -> world
             tau[:3] = rot.T @ wrench[:3]
             tau[3:6] = rot.T @ wrench[3:]
@@ -451,22 +520,7 @@ def fallen(
         True if the base is below ``ground_height + min_base_height`` or tilted by more than ``max_tilt``.
     """
     q = np.asarray(state.q, dtype=float)
-    qx, qy, qz, qw = q[3:7] / np.linalg.norm(q[3:7])
-    cos_tilt = np.clip(1.0 - 2.0 * (qx * qx + qy * qy), -1.0, 1.0)
-    return bool(q[2] < ground_height + min_base_height or np.arccos(cos_tilt) > max_tilt)
-
-
-def _finite_vector(x: np.ndarray, size: int, name: str) -> np.ndarray:
-    """``x`` as a float vector of shape (size,), or ValueError naming ``name``."""
-    try:
-        arr = np.asarray(x, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a numeric array of shape ({size},)") from exc
-    if arr.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf: {arr}")
-    return arr
+    return bool(q[2] < ground_height + min_base_height or tilt(q) > max_tilt)
 
 
 def _contact_flags(contact: np.ndarray, n: int) -> np.ndarray:

@@ -62,10 +62,7 @@ Example:
 
 from __future__ import annotations
 
-import re
 import tempfile
-import warnings
-import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,7 +72,15 @@ import pinocchio as pin
 import pybullet as p
 
 from wbmpc import checks
-from wbmpc.model.robot import Robot, RobotModelError, example_robot_data_dir
+from wbmpc.model.quaternion import (
+    cross3,
+    quaternion_conjugate,
+    quaternion_from_matrix,
+    quaternion_multiply,
+    rotation_matrix,
+)
+from wbmpc.model.robot import Robot, RobotModelError
+from wbmpc.model.urdf import offset_base_com, preprocess_urdf
 from wbmpc.sim.plant import Plant, PlantState
 from wbmpc.sim.plant import fallen as _fallen
 
@@ -260,7 +265,7 @@ class PyBulletPlant(Plant):
         self._friction_velocity = float(friction_velocity)
         com_offset = base_com_offset
         if com_offset is not None:
-            com_offset = _finite_vector(com_offset, 3, "base_com_offset")
+            com_offset = checks.array("base_com_offset", com_offset, 3)
         if not (np.isfinite(torque_latency) and torque_latency >= 0.0):
             raise ValueError(f"torque_latency must be >= 0 [s], got {torque_latency}")
         self._latency_steps = round(torque_latency / self._dt)
@@ -342,7 +347,7 @@ class PyBulletPlant(Plant):
         info = p.getDynamicsInfo(body, -1, physicsClientId=cid)
         self._r_li = np.array(info[3])
         self._q_li = np.array(info[4])
-        self._q_il = _quat_conj(self._q_li)
+        self._q_il = quaternion_conjugate(self._q_li)
 
         for link in range(-1, p.getNumJoints(body, physicsClientId=cid)):
             p.changeDynamics(
@@ -486,10 +491,10 @@ class PyBulletPlant(Plant):
         pos_c, quat_c = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         vel_c, omega = p.getBaseVelocity(body, physicsClientId=cid)
         states = p.getJointStates(body, self._joint_ids, physicsClientId=cid)
-        quat = _quat_mul(quat_c, self._q_il)
+        quat = quaternion_multiply(quat_c, self._q_il)
         if quat @ self._q[3:7] < 0.0:
             quat = -quat  # same rotation; stay in the previous state's hemisphere (no sign jumps in logs)
-        R = _quat_matrix(quat)
+        R = rotation_matrix(quat)
         r_c = R @ self._r_li  # base origin -> centre of mass, world
         omega = np.array(omega)
         q = np.empty(self._model.nq)
@@ -497,20 +502,20 @@ class PyBulletPlant(Plant):
         q[:3] = np.subtract(pos_c, r_c)
         q[3:7] = quat
         q[7:] = [s[0] for s in states]
-        v[:3] = (np.subtract(vel_c, _cross(omega, r_c))) @ R
+        v[:3] = (np.subtract(vel_c, cross3(omega, r_c))) @ R
         v[3:6] = omega @ R
         v[6:] = [s[1] for s in states]
         return q, v
 
     def _write_state(self, q: np.ndarray, v: np.ndarray) -> None:
         cid, body = self._client, self._body
-        R = _quat_matrix(q[3:7])
+        R = rotation_matrix(q[3:7])
         r_c = R @ self._r_li
         omega = R @ v[3:6]
         p.resetBasePositionAndOrientation(
-            body, q[:3] + r_c, _quat_mul(q[3:7], self._q_li), physicsClientId=cid
+            body, q[:3] + r_c, quaternion_multiply(q[3:7], self._q_li), physicsClientId=cid
         )
-        p.resetBaseVelocity(body, R @ v[:3] + _cross(omega, r_c), omega, physicsClientId=cid)
+        p.resetBaseVelocity(body, R @ v[:3] + cross3(omega, r_c), omega, physicsClientId=cid)
         p.resetJointStatesMultiDof(
             body,
             self._joint_ids,
@@ -536,8 +541,8 @@ class PyBulletPlant(Plant):
         Raises:
             ValueError: On a wrong shape or a non-finite value in ``q``, ``v`` or ``t``.
         """
-        q = _finite_vector(q, self._model.nq, "q").copy()
-        v = _finite_vector(v, self._model.nv, "v")
+        q = checks.array("q", q, self._model.nq).copy()
+        v = checks.array("v", v, self._model.nv)
         if not np.isfinite(t):
             raise ValueError(f"t must be finite, got {t}")
         norm = np.linalg.norm(q[3:7])
@@ -592,13 +597,13 @@ class PyBulletPlant(Plant):
         """
         del contact
         cid, body = self._client, self._body
-        tau = _finite_vector(tau_joints, self._robot.nj, "tau_joints")
+        tau = checks.array("tau_joints", tau_joints, self._robot.nj)
         clipped = np.abs(tau) > self._tau_limits
         if clipped.any():
             self._clip_counts += clipped
             tau = np.clip(tau, -self._tau_limits, self._tau_limits)
         tau = self._motor_dynamics(tau)
-        wrench = None if external_wrench is None else _finite_vector(external_wrench, 6, "external_wrench")
+        wrench = None if external_wrench is None else checks.array("external_wrench", external_wrench, 6)
         p.setJointMotorControlArray(body, self._joint_ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
         if wrench is not None:
             p.applyExternalForce(body, -1, wrench[:3], self._q[:3], p.WORLD_FRAME, physicsClientId=cid)
@@ -606,7 +611,7 @@ class PyBulletPlant(Plant):
         if ee_force is not None:
             if self._ee_link is None:
                 raise ValueError(f"robot {self._robot.name!r} has no end effector to push")
-            force = _finite_vector(ee_force, 3, "ee_force")
+            force = checks.array("ee_force", ee_force, 3)
             p.applyExternalForce(
                 body, self._ee_link, force, self.ee_position(), p.WORLD_FRAME, physicsClientId=cid
             )
@@ -685,8 +690,9 @@ class PyBulletPlant(Plant):
         """
         return self._forces.copy()
 
-    def foot_contacts(self) -> np.ndarray:
-        """Feet pushed upwards by a contact after the last step, shape (n_feet,) bool."""
+    def foot_contacts(self, scheduled: np.ndarray | None = None) -> np.ndarray:
+        """Feet pushed upwards by a contact after the last step, shape (n_feet,) bool (``scheduled`` is
+        ignored: the contacts come from the physics)."""
         return self._in_contact.copy()
 
     def ee_contact_force(self) -> np.ndarray:
@@ -718,7 +724,7 @@ class PyBulletPlant(Plant):
             )
             com, vel, omega = s[0], s[6], s[7]
         origin = (self._link_placement(link) * offset).translation
-        return np.concatenate([np.add(vel, _cross(omega, origin - np.array(com))), omega])
+        return np.concatenate([np.add(vel, cross3(omega, origin - np.array(com))), omega])
 
     @property
     def foot_positions(self) -> np.ndarray:
@@ -742,11 +748,11 @@ class PyBulletPlant(Plant):
         cid = self._client
         if link == -1:
             pos, quat = p.getBasePositionAndOrientation(self._body, physicsClientId=cid)
-            quat = _quat_mul(np.array(quat), _quat_conj(self._q_li))
-            R = _quat_matrix(quat)
+            quat = quaternion_multiply(np.array(quat), quaternion_conjugate(self._q_li))
+            R = rotation_matrix(quat)
             return pin.SE3(R, np.array(pos) - R @ self._r_li)
         s = p.getLinkState(self._body, link, computeForwardKinematics=True, physicsClientId=cid)
-        return pin.SE3(_quat_matrix(np.array(s[5])), np.array(s[4]))
+        return pin.SE3(rotation_matrix(np.array(s[5])), np.array(s[4]))
 
     def fallen(self, state: PlantState | None = None, **kwargs) -> bool:
         """:func:`wbmpc.sim.plant.fallen` on ``state`` (default: the current state); kwargs are passed on."""
@@ -769,9 +775,9 @@ class PyBulletPlant(Plant):
         dv = np.asarray(delta_v_world, dtype=float)
         if dv.shape not in ((3,), (6,)):
             raise ValueError(f"delta_v_world must have shape (3,) or (6,), got {dv.shape}")
-        dv = _finite_vector(dv, dv.size, "delta_v_world")
+        dv = checks.array("delta_v_world", dv, dv.size)
         q, v = self._read_state()
-        R = _quat_matrix(q[3:7])
+        R = rotation_matrix(q[3:7])
         v[:3] += R.T @ dv[:3]
         if dv.size == 6:
             v[3:6] += R.T @ dv[3:]
@@ -796,17 +802,17 @@ class PyBulletPlant(Plant):
             raise ValueError(f"a scene body is already named {name!r}")
         cid = self._client
         if isinstance(obj, Box):
-            half = 0.5 * _finite_vector(obj.size, 3, "Box.size")
+            half = 0.5 * checks.array("Box.size", obj.size, 3)
             shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid)
             body = p.createMultiBody(
                 obj.mass,
                 shape,
-                basePosition=_finite_vector(obj.position, 3, "Box.position"),
+                basePosition=checks.array("Box.position", obj.position, 3),
                 baseOrientation=p.getQuaternionFromEuler((0.0, 0.0, obj.yaw)),
                 physicsClientId=cid,
             )
         elif isinstance(obj, Wall):
-            n = _finite_vector(obj.normal, 3, "Wall.normal")
+            n = checks.array("Wall.normal", obj.normal, 3)
             n = n / np.linalg.norm(n)
             up = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
             up = up - (up @ n) * n
@@ -816,9 +822,13 @@ class PyBulletPlant(Plant):
             shape = p.createCollisionShape(
                 p.GEOM_BOX, halfExtents=[0.5 * obj.thickness, 0.5 * width, 0.5 * height], physicsClientId=cid
             )
-            centre = _finite_vector(obj.position, 3, "Wall.position") - 0.5 * obj.thickness * n
+            centre = checks.array("Wall.position", obj.position, 3) - 0.5 * obj.thickness * n
             body = p.createMultiBody(
-                0.0, shape, basePosition=centre, baseOrientation=_matrix_quat(R), physicsClientId=cid
+                0.0,
+                shape,
+                basePosition=centre,
+                baseOrientation=quaternion_from_matrix(R),
+                physicsClientId=cid,
             )
         else:
             if obj.attach not in (None, "rigid", "tether"):
@@ -830,7 +840,7 @@ class PyBulletPlant(Plant):
             if obj.position is None:
                 position = self.ee_position() - [0.0, 0.0, obj.radius]
             else:
-                position = _finite_vector(obj.position, 3, "Payload.position")
+                position = checks.array("Payload.position", obj.position, 3)
             shape = p.createCollisionShape(p.GEOM_SPHERE, radius=obj.radius, physicsClientId=cid)
             body = p.createMultiBody(obj.mass, shape, basePosition=position, physicsClientId=cid)
             self._payloads[name] = obj
@@ -890,7 +900,7 @@ class PyBulletPlant(Plant):
                 p.setCollisionFilterPair(self._body, body, link, -1, 0, physicsClientId=cid)
             # Constraint frames are given in the link's inertial frame, not its URDF frame.
             info = p.getDynamicsInfo(self._body, self._ee_link, physicsClientId=cid)
-            pivot = _quat_matrix(np.array(info[4])).T @ (self._ee_offset.translation - np.array(info[3]))
+            pivot = rotation_matrix(np.array(info[4])).T @ (self._ee_offset.translation - np.array(info[3]))
             constraint = p.createConstraint(
                 self._body,
                 self._ee_link,
@@ -939,10 +949,10 @@ class PyBulletPlant(Plant):
             computeForwardKinematics=True,
             physicsClientId=cid,
         )
-        R = _quat_matrix(np.array(s[5]))
+        R = rotation_matrix(np.array(s[5]))
         r = R @ self._ee_offset.translation
         p_ee = np.array(s[4]) + r
-        v_ee = np.array(s[6]) + _cross(s[7], r - np.subtract(s[0], s[4]))
+        v_ee = np.array(s[6]) + cross3(s[7], r - np.subtract(s[0], s[4]))
         body = self._bodies[name]
         pos, _ = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         vel, _ = p.getBaseVelocity(body, physicsClientId=cid)
@@ -982,130 +992,11 @@ class PyBulletPlant(Plant):
             pass
 
 
-# ---------------------------------------------------------------------------------------------- URDF
-def preprocess_urdf(urdf_path: str | Path, locked_joints: Mapping[str, float] | None = None) -> str:
-    """URDF text ready for PyBullet: no visuals, absolute mesh paths, locked joints made fixed.
-
-    Args:
-        urdf_path: The original URDF.
-        locked_joints: ``{joint name: angle}`` [rad] (or [m] for prismatic joints) to turn into fixed joints
-            at that value.
-
-    Returns:
-        The processed URDF as a string.
-
-    Raises:
-        RobotModelError: If a locked joint is missing or not revolute, continuous or prismatic.
-    """
-    urdf_path = Path(urdf_path)
-    root = ET.fromstring(urdf_path.read_text())
-    for link in root.iter("link"):
-        for visual in link.findall("visual"):
-            link.remove(visual)
-    for mesh in root.iter("mesh"):
-        mesh.set("filename", _resolve_mesh(mesh.get("filename", ""), urdf_path))
-    joints = {joint.get("name"): joint for joint in root.iter("joint") if joint.get("type")}
-    for name, value in (locked_joints or {}).items():
-        joint = joints.get(name)
-        if joint is None:
-            raise RobotModelError(f"locked joint {name!r} is not in {urdf_path}")
-        kind = joint.get("type")
-        if kind not in ("revolute", "continuous", "prismatic"):
-            raise RobotModelError(f"locked joint {name!r} has unsupported type {kind!r}")
-        origin = joint.find("origin")
-        xyz = np.array(origin.get("xyz", "0 0 0").split(), dtype=float) if origin is not None else np.zeros(3)
-        rpy = np.array(origin.get("rpy", "0 0 0").split(), dtype=float) if origin is not None else np.zeros(3)
-        axis_el = joint.find("axis")
-        axis = (
-            np.array(axis_el.get("xyz").split(), dtype=float)
-            if axis_el is not None
-            else np.array([1, 0, 0.0])
-        )
-        axis = axis / np.linalg.norm(axis)
-        placement = pin.SE3(pin.rpy.rpyToMatrix(rpy), xyz)
-        if kind == "prismatic":
-            motion = pin.SE3(np.eye(3), axis * value)
-        else:
-            motion = pin.SE3(pin.AngleAxis(value, axis).toRotationMatrix(), np.zeros(3))
-        placement = placement * motion
-        for tag in ("axis", "limit", "dynamics", "calibration", "safety_controller", "mimic", "origin"):
-            for element in joint.findall(tag):
-                joint.remove(element)
-        joint.set("type", "fixed")
-        new_origin = ET.SubElement(joint, "origin")
-        new_origin.set("xyz", " ".join(f"{x:.17g}" for x in placement.translation))
-        new_origin.set("rpy", " ".join(f"{x:.17g}" for x in pin.rpy.matrixToRpy(placement.rotation)))
-    return ET.tostring(root, encoding="unicode")
-
-
-def _resolve_mesh(filename: str, urdf_path: Path) -> str:
-    """Absolute path of a URDF mesh reference (``package://``, ``file://`` or relative)."""
-    match = re.match(r"package://([^/]+)/(.*)", filename)
-    if match:
-        package, rest = match.groups()
-        candidates = []
-        if package == "example-robot-data":
-            try:
-                candidates.append(example_robot_data_dir().parent / rest)
-            except RobotModelError:
-                pass
-        candidates += [parent / package / rest for parent in urdf_path.resolve().parents]
-        candidates += [parent / rest for parent in urdf_path.resolve().parents if parent.name == package]
-        for candidate in candidates:
-            if candidate.is_file():
-                return str(candidate)
-        warnings.warn(f"mesh {filename} not found; PyBullet will skip it", stacklevel=3)
-        return filename
-    if filename.startswith("file://"):
-        return filename[len("file://") :]
-    path = Path(filename)
-    return str(path if path.is_absolute() else (urdf_path.parent / path).resolve())
-
-
-def offset_base_com(urdf_text: str, offset: np.ndarray) -> str:
-    """URDF text with the base's centre of mass moved by ``offset`` [m] (root link frame).
-
-    The mass moved is the heaviest link rigidly attached to the root link (through fixed joints; the B1's
-    root ``base`` is a massless dummy on the ``trunk``), so that its inertial origin moves by ``offset``
-    expressed in the root frame.
-    """
-    root = ET.fromstring(urdf_text)
-    links = {link.get("name"): link for link in root.iter("link")}
-    children = {child.get("link") for child in root.iter("child")}
-    base = next(name for name in links if name not in children)
-    # Links rigidly attached to the base, with their rotation relative to it.
-    rigid, stack = {base: np.eye(3)}, [base]
-    while stack:
-        parent = stack.pop()
-        for joint in root.iter("joint"):
-            if joint.get("type") == "fixed" and joint.find("parent").get("link") == parent:
-                origin = joint.find("origin")
-                rpy = np.zeros(3) if origin is None else np.array(origin.get("rpy", "0 0 0").split(), float)
-                child = joint.find("child").get("link")
-                rigid[child] = rigid[parent] @ pin.rpy.rpyToMatrix(rpy)
-                stack.append(child)
-
-    def mass(name):
-        element = links[name].find("inertial/mass")
-        return 0.0 if element is None else float(element.get("value", 0.0))
-
-    heavy = max(rigid, key=mass)
-    inertial = links[heavy].find("inertial")
-    if inertial is None:
-        raise RobotModelError(f"no link rigidly attached to {base!r} has an <inertial> to move")
-    origin = inertial.find("origin")
-    if origin is None:
-        origin = ET.SubElement(inertial, "origin")
-    xyz = np.array(origin.get("xyz", "0 0 0").split(), dtype=float)
-    origin.set("xyz", " ".join(f"{x:.17g}" for x in xyz + rigid[heavy].T @ np.asarray(offset, float)))
-    return ET.tostring(root, encoding="unicode")
-
-
 # ---------------------------------------------------------------------------------------------- helpers
 def _joint_values(x, nj: int, name: str) -> np.ndarray:
     """A per-joint parameter >= 0: scalar or (nj,), as an (nj,) array."""
     arr = np.broadcast_to(np.asarray(x, dtype=float), (nj,)).copy() if np.ndim(x) == 0 else None
-    arr = _finite_vector(x, nj, name) if arr is None else arr
+    arr = checks.array(name, x, nj) if arr is None else arr
     if not np.isfinite(arr).all() or np.any(arr < 0):
         raise ValueError(f"{name} must be finite and >= 0, got {x!r}")
     return arr
@@ -1119,56 +1010,3 @@ def _scene_items(scene) -> list[tuple[str | None, SceneObject]]:
     if isinstance(scene, (Box, Wall, Payload)):
         return [(None, scene)]
     return [(None, obj) for obj in scene]
-
-
-def _quat_matrix(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = quat
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def _matrix_quat(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) of a rotation matrix."""
-    return pin.Quaternion(R).coeffs()
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a * b`` of quaternions (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
-
-
-def _cross(a, b) -> np.ndarray:
-    """Cross product of 3-vectors (``np.cross`` costs ~25 us on 3-vectors, this ~2 us)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _quat_conj(quat: np.ndarray) -> np.ndarray:
-    return np.array([-quat[0], -quat[1], -quat[2], quat[3]])
-
-
-def _finite_vector(x, size: int, name: str) -> np.ndarray:
-    """``x`` as a float vector of shape (size,), or ValueError naming ``name``."""
-    try:
-        arr = np.asarray(x, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a numeric array of shape ({size},)") from exc
-    if arr.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf: {arr}")
-    return arr

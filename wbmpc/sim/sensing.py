@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.estimation.filters import LowPassFilter
+
 
 @dataclass(frozen=True)
 class SensorNoise:
@@ -58,33 +60,6 @@ class SensorNoise:
                 )
         if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) or self.seed < 0:
             raise ValueError(f"SensorNoise.seed must be an integer >= 0, got {self.seed!r}")
-
-
-class LowPassFilter:
-    """First-order low-pass filter of a vector signal sampled every ``dt``.
-
-    Args:
-        cutoff_hz: Cut-off frequency [Hz] (``None`` or ``inf``: no filtering).
-        dt: Sampling period [s].
-    """
-
-    def __init__(self, cutoff_hz: float | None, dt: float):
-        if not isinstance(dt, numbers.Real) or dt <= 0 or not np.isfinite(dt):
-            raise ValueError(f"dt must be > 0 [s], got {dt}")
-        if cutoff_hz is not None and (not isinstance(cutoff_hz, numbers.Real) or not cutoff_hz > 0):
-            raise ValueError(f"cutoff_hz must be > 0 [Hz] or None, got {cutoff_hz}")
-        self.alpha = (
-            1.0 if cutoff_hz is None or np.isinf(cutoff_hz) else dt / (dt + 1.0 / (2 * np.pi * cutoff_hz))
-        )
-        self.value: np.ndarray | None = None
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        self.value = x.copy() if self.value is None else self.value + self.alpha * (x - self.value)
-        return self.value.copy()
-
-    def reset(self) -> None:
-        self.value = None
 
 
 class StateSensor:

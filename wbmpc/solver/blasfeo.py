@@ -334,7 +334,9 @@ def activate() -> dict:
         # Fatrop (or something else) loaded a BLASFEO before wbmpc was imported: that one stays.
         loaded = already[0]
         choice = "native" if os.path.realpath(loaded) == os.path.realpath(native_path()) else "generic"
-        reason = f"a BLASFEO was loaded before `import wbmpc` ({loaded}); import wbmpc before using Fatrop"
+        reason = (
+            f"a BLASFEO was loaded before wbmpc chose one ({loaded}); import wbmpc.solver before using Fatrop"
+        )
         warn, target = True, None
     elif target is not None and not already:
         error = _load_global(target)

@@ -25,7 +25,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from wbmpc.control.mpc import WholeBodyMPC
+from wbmpc.ocp import OCP
+from wbmpc.solver import codegen
+from wbmpc.solver.nlpsol import TOL, WARM_MAX_ITER, WARM_MU_INIT, make_nlpsol, solver_options
 
 SOLVER_NAME = "wbmpc_solver"
 
@@ -35,9 +37,8 @@ def casadi_dir() -> Path:
     return Path(ca.__file__).resolve().parent
 
 
-def layout(mpc: WholeBodyMPC, solver: ca.Function) -> dict:
+def layout(ocp: OCP, solver: ca.Function) -> dict:
     """Machine-readable description of the solver's inputs, outputs and the OCP layout."""
-    ocp = mpc.ocp
     blocks = [
         {"name": name, "offset": start, "rows": rows, "cols": cols, "order": "column-major"}
         for name, (start, (rows, cols)) in ocp.params.blocks.items()
@@ -59,7 +60,7 @@ def layout(mpc: WholeBodyMPC, solver: ca.Function) -> dict:
         stages.append(entry)
     return {
         "solver": SOLVER_NAME,
-        "robot": mpc.robot.name,
+        "robot": ocp.robot.name,
         "formulation": ocp.settings.formulation,
         "nodes": ocp.n_nodes,
         "n_tau_nodes": ocp.settings.n_tau_nodes,
@@ -70,8 +71,8 @@ def layout(mpc: WholeBodyMPC, solver: ca.Function) -> dict:
         "outputs": [{"name": solver.name_out(i), "size": solver.numel_out(i)} for i in range(solver.n_out())],
         "parameters": blocks,
         "stages": stages,
-        "contact_frames": list(mpc.robot.contact_frames),
-        "joint_names": mpc.robot.joint_names,
+        "contact_frames": list(ocp.robot.contact_frames),
+        "joint_names": ocp.robot.joint_names,
         "lbg": [float(v) if np.isfinite(v) else None for v in ocp.lbg],
         "ubg": [float(v) if np.isfinite(v) else None for v in ocp.ubg],
         "units": "SI: m, rad, s, N, N m; forces on the robot in world axes",
@@ -87,24 +88,40 @@ def _ranges(blocks: list[tuple[str, int]]) -> dict[str, list[int]]:
     return out
 
 
-def export(mpc: WholeBodyMPC, directory: Path, warm: bool = True, flags: tuple[str, ...] = ("-O1",)) -> Path:
-    """Write the deployment folder for a compiled MPC and build ``libwbmpc_solver.so``.
+def export(
+    ocp: OCP,
+    directory: Path,
+    options: dict | None = None,
+    flags: tuple[str, ...] = ("-O1",),
+    nlp_flags: tuple[str, ...] = codegen.DEFAULT_FLAGS,
+) -> Path:
+    """Write the deployment folder of an OCP's Fatrop solve and build ``libwbmpc_solver.so``.
 
     Args:
-        mpc: An MPC with ``config.compiled=True``.
+        ocp: The OCP (:class:`~wbmpc.ocp.OCP`).
         directory: Output folder (created).
-        warm: Export the warm-start solver options (else the cold-start ones).
+        options: Fatrop's ``nlpsol`` options (:func:`wbmpc.solver.nlpsol.solver_options`); ``None``: the
+            warm start of the MPC's defaults (those of an MPC: ``mpc.solver_options(cold=False)``).
         flags: gcc flags of the solver library.
+        nlp_flags: gcc flags of the compiled NLP functions (:func:`wbmpc.solver.codegen.build`, cached; an
+            MPC's are ``mpc.config.compile_flags``).
 
     Returns:
         The folder.
+
+    Raises:
+        ValueError: options of another solver than Fatrop.
     """
-    if not mpc.config.compiled:
-        raise ValueError("export needs an MPC built with MPCConfig(compiled=True)")
+    if options is None:
+        options = solver_options(
+            "fatrop", tol=TOL, max_iter=WARM_MAX_ITER, mu_init=WARM_MU_INIT, warm=True, equality=ocp.equality
+        )
+    if "fatrop" not in options:
+        raise ValueError(f"export needs Fatrop's options (solver_options('fatrop', ...)), got {options!r}")
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    solver = mpc.make_solver(SOLVER_NAME, cold=not warm)
-    nlp = mpc.compiled_nlp.library
+    nlp = codegen.build(ocp, tuple(nlp_flags), progress=False).library
+    solver = make_nlpsol(SOLVER_NAME, "fatrop", ocp.nlp, options, nlp)
     shutil.copy(nlp, directory / "libwbmpc_nlp.so")
     shutil.copy(nlp.parent / "wbmpc_nlp.h", directory / "wbmpc_nlp.h")
     cwd = os.getcwd()
@@ -114,7 +131,7 @@ def export(mpc: WholeBodyMPC, directory: Path, warm: bool = True, flags: tuple[s
     finally:
         os.chdir(cwd)
     shutil.copy(Path(__file__).parent / "c" / "solve_once.c", directory / "solve_once.c")
-    (directory / "layout.json").write_text(json.dumps(layout(mpc, solver), indent=1))
+    (directory / "layout.json").write_text(json.dumps(layout(ocp, solver), indent=1))
     lib_dir = casadi_dir()
     _run(
         [

@@ -56,7 +56,7 @@ def run_case(plant: str, command: tuple[float, float, float], trot: float, robot
     """One plant and command: stand 2 s, trot ``trot`` s; the tracking row (see the module doc).
 
     Args:
-        plant: ``"rigid"``, ``"pybullet"`` or ``"emulated"`` (:func:`wbmpc.sim.hardware.hardware_config`,
+        plant: ``"rigid"``, ``"pybullet"`` or ``"emulated"`` (:func:`wbmpc.sim.presets.hardware_config`,
             measured delay, estimated state).
         command: ``(forward [m/s], left [m/s], yaw rate [rad/s])``, heading frame.
         trot: Trot duration [s] (the average starts 1 s into it).

@@ -1,7 +1,7 @@
 """What each mismatch of the emulated robot does to the MPC: one at a time, and together.
 
 Every variant runs the same stand-then-trot schedule on the emulated robot
-(:func:`wbmpc.sim.hardware.hardware_config`: PyBullet, the hardware low level, the measured computation
+(:func:`wbmpc.sim.presets.hardware_config`: PyBullet, the hardware low level, the measured computation
 delay, compiled Fatrop, N = 15, the arm held still in the heading frame) with one mismatch of
 :class:`~wbmpc.sim.hardware.HardwareProfile` switched on over the ideal robot (or all of them), and records
 per solve: the iterations, which constraint row groups the first iterate (the shifted warm start) violates

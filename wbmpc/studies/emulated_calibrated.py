@@ -2,7 +2,7 @@
 
 Two steps, each a command line:
 
-``record``: the lab's two trials on the emulated robot (:func:`wbmpc.sim.hardware.hardware_config`: full
+``record``: the lab's two trials on the emulated robot (:func:`wbmpc.sim.presets.hardware_config`: full
 hardware profile, estimator, measured computation delay, compiled Fatrop, N = 15, the arm held still in
 the heading frame), each recorded as a robot's ROS 2 bag at the 500 Hz command rate:
 

@@ -1,4 +1,4 @@
-"""Analysis of a run log that came from a robot (project issue 13): what the hardware did differently.
+"""Analysis of a run log that came from a robot: what the hardware did differently.
 
 Every function takes a columnar :class:`~wbmpc.io.logs.RunLog`, typically read from a ROS 2 bag with
 :func:`wbmpc.io.rosbag.read_bag`, and uses only what a robot records: joint states (``q``, ``v``, applied
@@ -27,6 +27,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.model.base_com import base_com_link, shift_base_com
+from wbmpc.model.robot import heading
 
 __all__ = [
     "BUDGET_S",
@@ -515,7 +516,7 @@ def identify_com_offset(
         fz = F[:, 2].sum()
         cx = (np.dot(p[:, 0], F[:, 2]) - np.dot(p[:, 2] - c[2], F[:, 0])) / fz
         cy = (np.dot(p[:, 1], F[:, 2]) - np.dot(p[:, 2] - c[2], F[:, 1])) / fz
-        yaw = np.arctan2(*_yaw_sin_cos(q[k]))
+        yaw = heading(q[k])
         R = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # world -> heading
         cop[k] = R @ (np.array([cx, cy]) - c[:2])
     shift = np.r_[cop.mean(axis=0), 0.0]
@@ -535,11 +536,6 @@ def identify_com_offset(
         link_mass=link_mass,
         body_mass=body_mass,
     )
-
-
-def _yaw_sin_cos(q: np.ndarray) -> tuple[float, float]:
-    x, y, z, w = q[3:7]
-    return 2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)
 
 
 # ------------------------------------------------------------------------------------------------- lean
@@ -622,7 +618,7 @@ def record_emulated_run(
     mpc=None,
     **overrides,
 ):
-    """A run of the MPC on the emulated robot (:func:`wbmpc.sim.hardware.hardware_config`): stand, then trot.
+    """A run of the MPC on the emulated robot (:func:`wbmpc.sim.presets.hardware_config`): stand, then trot.
 
     The computation delay is the measured one (each whole solve call's wall time on this machine) unless
     ``delay`` is overridden; the arm holds still in the heading frame (``arm_reference=None`` with
@@ -650,7 +646,7 @@ def record_emulated_run(
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.ocp.gait import parse_gait_schedule
     from wbmpc.sim.closed_loop import run_closed_loop
-    from wbmpc.sim.hardware import hardware_config
+    from wbmpc.sim.presets import hardware_config
 
     robot = robot or load_b1_z1()
     spec = gait or (f"stand:{stand:g},trot@{speed:g}:{trot:g}" if trot > 0 else "stand")

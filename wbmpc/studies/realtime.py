@@ -55,18 +55,18 @@ VARIANTS = {
 _WORKER = """
 import json, sys, time
 import numpy as np
-from wbmpc.robot import load_b1_z1
-from wbmpc.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.model.robot import load_b1_z1
+from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
 from wbmpc.ocp import OCPSettings
-from wbmpc.gait import make_gait
-from wbmpc.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 compiled, steps, warmup = {compiled}, {steps}, {warmup}
 flags = {{"compile_flags": {flags}}} if {flags} != ("-O1",) else {{}}
 robot = load_b1_z1()
 settings = OCPSettings(n_nodes=15, **{layout})  # the baseline's default layout is the paper's
 mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled, **flags))
 mpc.verbose = False
-mpc._solver(cold=True), mpc._solver(cold=False)  # build or load before timing
+mpc.prepare()  # build or load before timing
 log = run_closed_loop(mpc, ClosedLoopConfig(duration=(steps + warmup) / 80.0), progress=False).log
 ms = 1e3 * np.asarray(log.solve_time[warmup:])
 timings = log.timings[warmup:]

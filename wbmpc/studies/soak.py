@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> dict:
         runs.append(run(args.compare_minutes, args.nodes, None, args.every, None))
     growth_mb = streamed["rss_growth_after_first_minute"]["growth_mb"]
     result = {
-        "benchmark": "soak: standing run, process RSS over simulated time (issue 12)",
+        "benchmark": "soak: standing run, process RSS over simulated time",
         "command": "python -m wbmpc.studies.soak " + " ".join(argv if argv is not None else sys.argv[1:]),
         "settings": {
             "robot": "b1_z1",

@@ -21,7 +21,6 @@ the original files.
 from __future__ import annotations
 
 import io
-import re
 import time
 import warnings
 import xml.etree.ElementTree as ET
@@ -38,7 +37,8 @@ import zmq
 from meshcat.animation import Animation
 from pinocchio.visualize import MeshcatVisualizer
 
-from wbmpc.model.robot import Robot, RobotModelError, example_robot_data_dir
+from wbmpc.model.robot import Robot, RobotModelError
+from wbmpc.model.urdf import default_package_dirs, resolve_mesh_path
 from wbmpc.viz.plots import EE_COLOR, FOOT_COLORS
 
 FOOT_FORCE_COLOR = 0xD62728  # red
@@ -75,7 +75,7 @@ def visual_model(robot: Robot) -> tuple[pin.Model, pin.GeometryModel]:
     Raises:
         RobotModelError: if the reduced model does not match ``robot.model`` (nq or joint names).
     """
-    full, geom = _full_visual_model(str(robot.urdf_path), _package_dirs())
+    full, geom = _full_visual_model(str(robot.urdf_path), default_package_dirs())
     lock_ids = [full.getJointId(name) for name in robot.locked_joints]
     if lock_ids:
         q_ref = pin.neutral(full)
@@ -109,48 +109,6 @@ def visual_model(robot: Robot) -> tuple[pin.Model, pin.GeometryModel]:
         )
     model.name = robot.model.name
     return model, geom
-
-
-def _package_dirs() -> tuple[str, ...]:
-    """Folders against which ``package://`` mesh URIs resolve."""
-    try:
-        robots = example_robot_data_dir()
-    except RobotModelError:
-        return ()
-    # URIs "package://example-robot-data/robots/..." need the share folder, "package://b1_description/..."
-    # the robots folder.
-    return (str(robots.parent.parent), str(robots))
-
-
-def resolve_mesh_path(filename: str, urdf_path: str | Path, package_dirs: Sequence[str | Path] = ()) -> str:
-    """Absolute path of a mesh reference of a URDF, found the way the PyBullet plant finds it.
-
-    * ``package://<package>/<rest>``: the first existing file among ``<dir>/<package>/<rest>`` for each of
-      ``package_dirs`` (the viewer passes the example-robot-data folders), ``<ancestor>/<package>/<rest>``
-      for each folder above the URDF, and ``<ancestor>/<rest>`` for a folder above the URDF named
-      ``<package>``;
-    * ``file://<path>`` and plain paths: relative ones are relative to the URDF's folder (``meshes/x.stl``,
-      ``../meshes/x.dae``).
-
-    Args:
-        filename: The ``filename`` attribute of a ``<mesh>``.
-        urdf_path: The URDF file.
-        package_dirs: Folders that hold packages, searched first.
-
-    Returns:
-        The absolute path, or ``filename`` unchanged if a ``package://`` URI matches no file.
-    """
-    urdf_dir = Path(urdf_path).resolve().parent
-    match = re.match(r"package://([^/]+)/(.*)", filename)
-    if match:
-        package, rest = match.groups()
-        candidates = [Path(d) / package / rest for d in package_dirs]
-        ancestors = [urdf_dir, *urdf_dir.parents]
-        candidates += [folder / package / rest for folder in ancestors]
-        candidates += [folder / rest for folder in ancestors if folder.name == package]
-        return next((str(c.resolve()) for c in candidates if c.is_file()), filename)
-    path = Path(filename.removeprefix("file://"))
-    return str(path if path.is_absolute() else (urdf_dir / path).resolve())
 
 
 def _urdf_with_resolved_meshes(urdf: str, package_dirs: Sequence[str]) -> str:

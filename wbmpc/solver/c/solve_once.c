@@ -1,6 +1,6 @@
 /* Solve the exported MPC problem once from C: the deployment smoke test of wbmpc.
  *
- * Build (wbmpc.deploy.build_example does this):
+ * Build (wbmpc.solver.deploy.build_example does this):
  *   gcc -O1 solve_once.c -I. -L. -lwbmpc_solver -o solve_once
  * Run:
  *   ./solve_once inputs.bin solution.bin

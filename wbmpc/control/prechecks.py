@@ -1,37 +1,20 @@
-"""Why a solve failed, and cheap physical checks of a request before it is solved.
+"""Cheap physical checks of a solve request before it is solved.
 
-Three parts, each usable on its own:
-
-* :func:`solver_status` turns a solver's ``stats()`` into a short name and a one-sentence reason
-  (Fatrop through CasADi 3.8.2, or IPOPT); :func:`exception_status` does the same for an exception the
-  solver raised.
-* Prechecks (:func:`run_prechecks` and the checks it runs) look at the robot, the measured state, the
-  commands and the gait with plain numpy/Pinocchio, in tens of microseconds, and return
-  :class:`Finding` objects that name the problem and its numbers (e.g. the arm joint that cannot hold the
-  commanded end-effector force).
-* :class:`FailureReporter` prints one line the first time a failure reason or a finding occurs in a
-  closed-loop run and counts every occurrence for the run summary.
-
-Fatrop's status through CasADi 3.8.2 (which ships libfatrop 1.1.8): ``stats["return_status"]`` is the
-return value of Fatrop's C interface ``fatrop_ocp_c_solve``, only 0 (success), 1 (anything else) or -1
-(an exception caught inside Fatrop). The actual reason is ``stats["fatrop"]["return_flag"]``, the integer
-value of Fatrop's ``IpSolverReturnFlag`` enum (``include/fatrop/ip_algorithm/ip_algorithm.hpp``)::
-
-    0 Success  1 MaxIterExceeded  2 StopAtAcceptablePoint  3 LocalInfeasibility
-    4 LineSearchFailed  5 ErrorInStepComputation  6 Unknown
+The prechecks (:func:`run_prechecks` and the checks it runs) look at the robot, the measured state, the
+commands and the gait with plain NumPy/Pinocchio, in tens of microseconds, and return :class:`Finding`
+objects that name the problem and its numbers (e.g. the arm joint that cannot hold the commanded
+end-effector force).
 
 Example:
-    >>> name, reason = solver_status("fatrop", solver.stats())
     >>> findings = run_prechecks(robot, q, v, commands, gait)
 """
 
 from __future__ import annotations
 
 import math
-import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
-from typing import Literal, TextIO
+from typing import Literal
 
 import numpy as np
 import pinocchio as pin
@@ -40,156 +23,6 @@ from wbmpc.model.robot import Robot, heading
 from wbmpc.ocp.gait import Gait
 
 Severity = Literal["warning", "error"]
-
-# --- solver status ------------------------------------------------------------------------------------------
-SUCCESS = "success"
-
-# IpSolverReturnFlag of Fatrop >= 1.0 (the enum order is the integer value).
-FATROP_FLAGS: dict[int, tuple[str, str]] = {
-    0: (SUCCESS, "Fatrop converged to the requested tolerance."),
-    1: ("max_iter_exceeded", "Fatrop reached its iteration cap before converging."),
-    2: (
-        "acceptable_point",
-        "Fatrop stopped at a point that meets only its acceptable (looser) tolerance.",
-    ),
-    3: (
-        "local_infeasibility",
-        "Fatrop's restoration phase failed: the constraints look locally infeasible.",
-    ),
-    4: (
-        "line_search_failed",
-        "Fatrop's line search found no acceptable step (the restoration phase failed too): the problem "
-        "is probably infeasible or badly scaled near the current iterate.",
-    ),
-    5: (
-        "step_computation_error",
-        "Fatrop could not compute a search direction (linear solve failed or gave NaN).",
-    ),
-    6: ("fatrop_unknown", "Fatrop stopped for an unspecified reason."),
-}
-
-# IPOPT ApplicationReturnStatus strings as CasADi reports them in stats()["return_status"].
-IPOPT_STATUSES: dict[str, tuple[str, str]] = {
-    "Solve_Succeeded": (SUCCESS, "IPOPT converged to the requested tolerance."),
-    "Solved_To_Acceptable_Level": (
-        "acceptable_point",
-        "IPOPT stopped at a point that meets only its acceptable (looser) tolerance.",
-    ),
-    "Infeasible_Problem_Detected": (
-        "infeasible",
-        "IPOPT converged to a point of local infeasibility: the constraints cannot all be met.",
-    ),
-    "Search_Direction_Becomes_Too_Small": (
-        "search_direction_too_small",
-        "IPOPT's search direction became too small to make progress.",
-    ),
-    "Diverging_Iterates": ("diverging", "IPOPT's iterates diverged (variables grew without bound)."),
-    "User_Requested_Stop": ("user_stop", "A callback asked IPOPT to stop."),
-    "Feasible_Point_Found": ("feasible_point", "IPOPT found a feasible point (square problem)."),
-    "Maximum_Iterations_Exceeded": (
-        "max_iter_exceeded",
-        "IPOPT reached its iteration cap before converging.",
-    ),
-    "Restoration_Failed": (
-        "restoration_failed",
-        "IPOPT's feasibility restoration phase failed: the problem is probably infeasible near the "
-        "current iterate.",
-    ),
-    "Error_In_Step_Computation": (
-        "step_computation_error",
-        "IPOPT could not compute a search direction (linear solver failure).",
-    ),
-    "Maximum_CpuTime_Exceeded": ("max_time_exceeded", "IPOPT reached its CPU-time limit."),
-    "Maximum_WallTime_Exceeded": ("max_time_exceeded", "IPOPT reached its wall-time limit."),
-    "Not_Enough_Degrees_Of_Freedom": (
-        "too_few_degrees_of_freedom",
-        "The problem has more equality constraints than variables.",
-    ),
-    "Invalid_Problem_Definition": ("invalid_problem", "IPOPT rejected the problem definition."),
-    "Invalid_Option": ("invalid_option", "IPOPT rejected one of its options."),
-    "Invalid_Number_Detected": (
-        "invalid_number",
-        "IPOPT got NaN or inf from a function evaluation (check the state, parameters and initial guess).",
-    ),
-    "Unrecoverable_Exception": ("solver_exception", "IPOPT raised an unrecoverable exception."),
-    "NonIpopt_Exception_Thrown": (
-        "solver_exception",
-        "A function called by IPOPT raised an exception.",
-    ),
-    "Insufficient_Memory": ("insufficient_memory", "IPOPT ran out of memory."),
-    "Internal_Error": ("internal_error", "IPOPT reported an internal error."),
-}
-
-
-def solver_status(solver: str, stats: dict) -> tuple[str, str]:
-    """A short name and a one-sentence reason for a solver's return status.
-
-    Args:
-        solver: ``"fatrop"`` or ``"ipopt"`` (the nlpsol plugin name).
-        stats: ``casadi.Function.stats()`` of the solver after the call.
-
-    Returns:
-        ``(name, reason)``; ``name`` is ``"success"`` for a converged solve. An unknown code gives
-        ``"<solver>_status_<raw code>"`` so the raw code is never lost.
-    """
-    solver = solver.lower()
-    raw = stats.get("return_status")
-    if solver == "fatrop":
-        inner = stats.get("fatrop") if isinstance(stats.get("fatrop"), dict) else {}
-        flag = inner.get("return_flag")
-        if raw == -1 or raw == "-1":  # Fatrop's C interface caught an exception before a flag was set
-            return "solver_exception", "Fatrop raised an internal exception (its C interface returned -1)."
-        if flag is not None:
-            try:
-                flag = int(flag)
-            except (TypeError, ValueError):
-                return f"fatrop_status_{flag}", f"Fatrop returned the unknown flag {flag!r}."
-            if flag in FATROP_FLAGS:
-                return FATROP_FLAGS[flag]
-            return (
-                f"fatrop_status_{flag}",
-                f"Fatrop returned the unknown flag {flag} (return_status {raw!r}).",
-            )
-        # No detailed flag (stats from another plugin version): only the C return value is known.
-        if raw in (0, "0") or (raw is None and stats.get("success")):
-            return FATROP_FLAGS[0]
-        if raw in (1, "1"):
-            return "fatrop_failed", "Fatrop did not converge (its stats give no detailed return flag)."
-        return f"fatrop_status_{raw}", f"Fatrop returned the unknown status {raw!r}."
-    if solver == "ipopt":
-        if isinstance(raw, str) and raw in IPOPT_STATUSES:
-            return IPOPT_STATUSES[raw]
-        return f"ipopt_status_{raw}", f"IPOPT returned the unknown status {raw!r}."
-    if stats.get("success"):
-        return SUCCESS, f"{solver} reported success."
-    return f"{solver}_status_{raw}", f"{solver} returned status {raw!r}."
-
-
-def exception_status(exc: BaseException) -> tuple[str, str]:
-    """A short name and a one-sentence reason for an exception raised by a solver call.
-
-    Args:
-        exc: The exception (CasADi raises ``RuntimeError`` with the evaluation error in its message).
-
-    Returns:
-        ``("nan_in_evaluation", ...)`` when the message mentions NaN or inf, ``"evaluation_error"`` for a
-        failed function evaluation, else ``"solver_exception"``; the reason quotes the first message line.
-    """
-    text = str(exc).strip()
-    first = text.splitlines()[0] if text else type(exc).__name__
-    if len(first) > 160:
-        first = first[:157] + "..."
-    lower = text.lower()
-    if (
-        "nan" in lower.split()
-        or "nan detected" in lower
-        or "inf detected" in lower
-        or "invalid number" in lower
-    ):
-        return "nan_in_evaluation", f"A function evaluation returned NaN or inf: {first}"
-    if "failed" in lower and ("eval" in lower or "function::call" in lower):
-        return "evaluation_error", f"A function evaluation failed: {first}"
-    return "solver_exception", f"The solver raised {type(exc).__name__}: {first}"
 
 
 # --- findings -------------------------------------------------------------------------------------------
@@ -696,80 +529,6 @@ def run_prechecks(
         if state_ok:
             findings += ee_world_hold(robot, q, commands)
     return sorted(findings, key=lambda f: f.severity != "error")
-
-
-# --- closed-loop reporting -------------------------------------------------------------------------------
-class FailureReporter:
-    """Print one line the first time each failure reason (or finding code) occurs; count them all.
-
-    Meant for a closed loop, where the same failure may repeat on every tick. Keys are the short names
-    (:func:`solver_status` names, finding codes), so a reason whose numbers change between ticks prints
-    once.
-
-    Args:
-        stream: Where to print (``sys.stdout`` at print time by default).
-        prefix: Start of every printed line.
-        enabled: ``False`` counts without printing.
-    """
-
-    def __init__(self, stream: TextIO | None = None, prefix: str = "wbmpc", enabled: bool = True):
-        self.stream = stream
-        self.prefix = prefix
-        self.enabled = enabled
-        self.failures: dict[str, int] = {}
-        self.findings: dict[str, int] = {}
-        self.first_time: dict[str, float] = {}
-        self.reasons: dict[str, str] = {}
-
-    def report(self, t: float, name: str, reason: str = "") -> bool:
-        """Count a failed solve at time ``t`` [s]; print it if ``name`` is new. Returns whether it printed.
-
-        A ``"success"`` name is ignored.
-        """
-        if name == SUCCESS:
-            return False
-        return self._count(self.failures, t, name, reason, "solve failed")
-
-    def report_status(self, t: float, success: bool, solver: str, stats: dict) -> tuple[str, str]:
-        """Name a solve's status with :func:`solver_status`, report it if it failed, and return it."""
-        name, reason = solver_status(solver, stats)
-        if not success:
-            self.report(t, name if name != SUCCESS else "not_converged", reason)
-        return name, reason
-
-    def report_findings(self, t: float, findings: Sequence[Finding]) -> int:
-        """Count precheck findings at time ``t`` [s]; print each new code once. Returns how many printed."""
-        printed = 0
-        for f in findings:
-            printed += self._count(self.findings, t, f.code, f.message, f"precheck {f.severity}")
-        return printed
-
-    def summary(self) -> dict:
-        """Counts for the run summary: ``{"failures": n, "failure_reasons": {name: count}, "findings":
-        {code: count}, "first_time": {name: t}, "reasons": {name: first reason}}``."""
-        return {
-            "failures": int(sum(self.failures.values())),
-            "failure_reasons": dict(self.failures),
-            "findings": dict(self.findings),
-            "first_time": dict(self.first_time),
-            "reasons": dict(self.reasons),
-        }
-
-    def _count(self, counts: dict, t: float, name: str, reason: str, kind: str) -> bool:
-        new = name not in counts
-        counts[name] = counts.get(name, 0) + 1
-        if not new:
-            return False
-        self.first_time.setdefault(name, float(t))
-        self.reasons.setdefault(name, reason)
-        if self.enabled:
-            stream = self.stream if self.stream is not None else sys.stdout
-            text = f": {reason}" if reason else ""
-            print(
-                f"{self.prefix} t={t:.3f} s: {kind}: {name}{text} (further occurrences counted, not printed)",
-                file=stream,
-            )
-        return True
 
 
 # --- helpers --------------------------------------------------------------------------------------------
