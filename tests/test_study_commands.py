@@ -205,3 +205,16 @@ def test_the_sweeps_command_line_runs_on_a_separately_started_scheduler(external
         ["demo", "--quick", "--scheduler", address, "--output", str(table), "--no-figures"]
     )
     assert again.skipped == 4 and not again.rows
+
+
+def test_soak_growth_of_a_run_too_short_for_a_slope_is_valid_json():
+    """One RSS sample: no slope (``None``, not NaN, which strict JSON refuses); no sample: a clear error."""
+    import json
+
+    one = soak.growth([{"t_sim_s": 0.0, "rss_mb": 100.0}])
+    assert one["slope_mb_per_sim_minute"] is None and one["growth_mb"] == 0.0
+    json.dumps(one, allow_nan=False)
+    two = soak.growth([{"t_sim_s": 0.0, "rss_mb": 100.0}, {"t_sim_s": 30.0, "rss_mb": 101.0}])
+    assert two["slope_mb_per_sim_minute"] == pytest.approx(2.0)  # 1 MB in half a simulated minute
+    with pytest.raises(ValueError, match="at least one RSS sample"):
+        soak.growth([])

@@ -70,19 +70,26 @@ class RssSampler:
 
 
 def growth(samples: list[dict], after: float = 60.0) -> dict:
-    """RSS growth after ``after`` simulated seconds: total, maximum, and slope per simulated minute [MB]."""
+    """RSS growth after ``after`` simulated seconds: total, maximum, and slope per simulated minute [MB]
+    (the slope is ``None`` with fewer than two samples: JSON has no NaN).
+
+    Raises:
+        ValueError: no samples.
+    """
+    if not samples:
+        raise ValueError("growth needs at least one RSS sample")
     t = np.array([s["t_sim_s"] for s in samples])
     rss = np.array([s["rss_mb"] for s in samples])
     late = t >= after - 1e-9
     if late.sum() < 2:  # too short: measure from the start
         late = np.ones_like(t, bool)
-    slope = np.polyfit(t[late] / 60.0, rss[late], 1)[0] if late.sum() >= 2 else float("nan")
+    slope = float(np.polyfit(t[late] / 60.0, rss[late], 1)[0]) if late.sum() >= 2 else None
     return {
         "from_t_s": float(t[late][0]),
         "to_t_s": float(t[late][-1]),
         "growth_mb": float(rss[late][-1] - rss[late][0]),
         "max_above_start_mb": float(rss[late].max() - rss[late][0]),
-        "slope_mb_per_sim_minute": float(slope),
+        "slope_mb_per_sim_minute": slope,
     }
 
 
@@ -198,7 +205,7 @@ def main(argv: list[str] | None = None) -> dict:
         "runs": runs,
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(result, indent=2) + "\n")
+    args.output.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
     print(
         json.dumps(
             {k: result[k] for k in ("streamed_growth_after_first_minute_mb", "slope_mb_per_sim_minute")}
