@@ -256,7 +256,8 @@ def test_emulated_robot_with_a_real_solve_delay_keeps_walking(robot):
     25 ms after its measurement, compensated: stand, then trot forward without falling or failing solves.
 
     25 ms is two MPC periods, above the 95th percentile of the whole solve call measured on both CI machine
-    kinds (13 ms on the AMD EPYC, data/hardware/emulated_calibrated.json; 20-23 ms on the Intel Xeon). It is
+    kinds (13 ms on the AMD EPYC in the previous run of data/hardware/emulated_calibrated.json; 20-23 ms on
+    the Intel Xeon, docs/emulated_robot.md). It is
     fixed rather than ``"measured"`` so that the outcome is this code's, not the load of the machine running
     the suite; the measured-delay runs are the study's (``python -m wbmpc.studies.emulated_calibrated``)
     and the measured-delay wiring is tested with injected solve times (tests/test_sim_harness.py)."""
