@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wbmpc import checks
 from wbmpc.control.arm_task import ArmReference
 from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
@@ -21,6 +22,8 @@ from wbmpc.sim.closed_loop import ClosedLoopConfig
 from wbmpc.sim.disturbances import Kick, Push
 from wbmpc.sim.pybullet_plant import Box, Payload, Wall
 from wbmpc.sim.sensing import SensorNoise
+from wbmpc.solver.deploy import export
+from wbmpc.solver.nlpsol import solver_options
 
 MPC_CONFIGS = [
     ({"dt_min": 0.0}, "dt_min must be a positive number"),
@@ -1126,7 +1129,66 @@ CATALOGUE = [
         C,
         "TopicMap JSON: the JSON string is not valid JSON",
     ),
+    # --- solver options, deployment, plants (the redesign's new entry points) ----------------------------
+    (
+        "named",
+        "solver options unknown solver",
+        lambda: solver_options("snopt", tol=1e-3, max_iter=10, mu_init=1e-4, warm=True),
+        C,
+        "solver must be one of ('fatrop', 'ipopt'), got 'snopt'",
+    ),
+    (
+        "named",
+        "solver options tol 0",
+        lambda: solver_options("fatrop", tol=0.0, max_iter=10, mu_init=1e-4, warm=True),
+        C,
+        "tol must be",
+    ),
+    (
+        "named",
+        "solver options max_iter 0",
+        lambda: solver_options("fatrop", tol=1e-3, max_iter=0, mu_init=1e-4, warm=True),
+        C,
+        "max_iter must be",
+    ),
+    (
+        "named",
+        "export with IPOPT options",
+        lambda: export(None, "/nonexistent/never_written", {"ipopt": {}}),
+        C,
+        "export needs Fatrop's options",
+    ),
+    (
+        "named",
+        "rigid plant pushed at the hand",
+        lambda: _rigid_plant().step(np.zeros(_b1z1().nj), np.ones(4, bool), ee_force=np.ones(3)),
+        C,
+        "the rigid-contact plant has no scene: ee_force needs the PyBullet plant",
+    ),
+    (
+        "named",
+        "array with NaN",
+        lambda: checks.array("q_hat", [0.0, NAN], 2),
+        C,
+        "q_hat must be finite (q_hat contains NaN or inf",
+    ),
+    (
+        "named",
+        "array of the wrong shape",
+        lambda: checks.array("v_hat", np.zeros(3), 22),
+        C,
+        "v_hat must have shape (22,), got (3,)",
+    ),
 ]
+
+
+def _rigid_plant():
+    from wbmpc.sim.plant import ContactPlant
+
+    robot = _b1z1()
+    plant = ContactPlant(robot.model, robot.foot_frames, foot_radius=robot.foot_radius)
+    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    return plant
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,8 @@ configuration.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -64,8 +66,12 @@ def tilt(q: np.ndarray) -> float | np.ndarray:
     Returns:
         A float for one configuration, else an array of shape (...,).
     """
-    out = np.arccos(np.clip(base_z_axis(q)[..., 2], -1.0, 1.0))
-    return float(out) if np.ndim(out) == 0 else out
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:  # one configuration, on every logged tick of the loop: plain floats, about 1 us
+        x, y, z, w = q[3:7]
+        cos_tilt = 1.0 - 2.0 * (x * x + y * y) / (x * x + y * y + z * z + w * w)
+        return math.acos(min(1.0, max(-1.0, cos_tilt)))
+    return np.arccos(np.clip(base_z_axis(q)[..., 2], -1.0, 1.0))
 
 
 def quaternion_from_matrix(R: np.ndarray) -> np.ndarray:
