@@ -1,7 +1,8 @@
 """The package's imports follow its data flow, and its light modules stay light.
 
 robot model -> symbolic dynamics -> OCP -> solver -> controller -> estimator -> logs -> plant/loop -> plots,
-with ``studies`` (the command lines) on top and ``checks`` / ``quick`` (argument checks, the quick-mode flag)
+``analysis`` (what a robot's log says, and the emulated-robot runs it is checked on) after the loop, with
+``studies`` (the command lines) on top and ``checks`` / ``quick`` (argument checks, the quick-mode flag)
 usable everywhere. The edges are read from the source (every ``import``, lazy ones inside functions too).
 """
 
@@ -26,7 +27,8 @@ ALLOWED = {
     "io": {"model", "estimation"},
     "sim": {"model", "ocp", "solver", "control", "estimation", "io"},
     "viz": {"model"},
-    "studies": {"model", "ocp", "solver", "control", "estimation", "io", "sim", "viz"},
+    "analysis": {"model", "ocp", "control", "io", "sim"},
+    "studies": {"model", "ocp", "solver", "control", "estimation", "io", "sim", "viz", "analysis"},
 }
 
 

@@ -20,6 +20,7 @@ from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import Gait, GaitSchedule, SwingParams, make_gait, parse_gait_schedule
 from wbmpc.sim.closed_loop import ClosedLoopConfig
 from wbmpc.sim.disturbances import Kick, Push
+from wbmpc.sim.loop_config import CommandSchedule, LowLevelConfig, PlantConfig, SensingConfig
 from wbmpc.sim.pybullet_plant import Box, Payload, Wall
 from wbmpc.sim.sensing import SensorNoise
 from wbmpc.solver.deploy import export
@@ -78,14 +79,19 @@ def test_ocp_settings(kwargs, message):
     "kwargs, message",
     [
         ({"delay": -1.0}, "delay must be 'off', 'measured' or seconds >= 0"),
-        ({"plant": "mujoco"}, "unknown plant 'mujoco'"),
-        ({"gait": "trot"}, "gait must be a Gait or GaitSchedule"),
+        ({"plant": "mujoco"}, "ClosedLoopConfig.plant must be a PlantConfig, got 'mujoco'"),
+        ({"commands": {"gait": "trot"}}, "ClosedLoopConfig.commands must be a CommandSchedule"),
     ],
 )
 def test_closed_loop_config(kwargs, message):
     with pytest.raises(ValueError) as err:
         ClosedLoopConfig(**kwargs)
     assert message in str(err.value)
+
+
+def test_command_schedule_refuses_a_gait_name():
+    with pytest.raises(ValueError, match="CommandSchedule.gait must be a Gait or GaitSchedule"):
+        CommandSchedule(gait="trot")
 
 
 @pytest.fixture(scope="module")
@@ -233,7 +239,7 @@ def _closed_loop(**kwargs):
 
 
 def _pb_loop(**kwargs):
-    return ClosedLoopConfig(plant="pybullet", **kwargs)
+    return ClosedLoopConfig(**({"plant": PlantConfig(kind="pybullet")} | kwargs))
 
 
 def _mutated_steps():
@@ -249,55 +255,73 @@ CATALOGUE = [
     (
         "silent",
         "loop kp < 0",
-        lambda: _closed_loop(kp=-10.0),
+        lambda: _closed_loop(low_level=LowLevelConfig(kp=-10.0)),
         C,
-        "ClosedLoopConfig.kp must be a finite number >= 0",
+        "LowLevelConfig.kp must be a finite number >= 0",
     ),
-    ("silent", "loop kd < 0", lambda: _closed_loop(kd=-1.0), C, "ClosedLoopConfig.kd must be"),
-    ("silent", "loop kp NaN", lambda: _closed_loop(kp=NAN), C, "ClosedLoopConfig.kp"),
-    ("silent", "loop kd inf", lambda: _closed_loop(kd=INF), C, "ClosedLoopConfig.kd"),
-    ("silent", "loop kp string", lambda: _closed_loop(kp="30"), C, "ClosedLoopConfig.kp"),
+    (
+        "silent",
+        "loop kd < 0",
+        lambda: _closed_loop(low_level=LowLevelConfig(kd=-1.0)),
+        C,
+        "LowLevelConfig.kd must be",
+    ),
+    ("silent", "loop kp NaN", lambda: _closed_loop(low_level=LowLevelConfig(kp=NAN)), C, "LowLevelConfig.kp"),
+    ("silent", "loop kd inf", lambda: _closed_loop(low_level=LowLevelConfig(kd=INF)), C, "LowLevelConfig.kd"),
+    (
+        "silent",
+        "loop kp string",
+        lambda: _closed_loop(low_level=LowLevelConfig(kp="30")),
+        C,
+        "LowLevelConfig.kp",
+    ),
     (
         "silent",
         "arm_gains negative",
-        lambda: _closed_loop(arm_gains=(-5.0, 1.0)),
+        lambda: _closed_loop(low_level=LowLevelConfig(arm_gains=(-5.0, 1.0))),
         C,
-        "ClosedLoopConfig.arm_gains",
+        "LowLevelConfig.arm_gains",
     ),
-    ("silent", "arm_gains NaN", lambda: _closed_loop(arm_gains=(5.0, NAN)), C, "ClosedLoopConfig.arm_gains"),
+    (
+        "silent",
+        "arm_gains NaN",
+        lambda: _closed_loop(low_level=LowLevelConfig(arm_gains=(5.0, NAN))),
+        C,
+        "LowLevelConfig.arm_gains",
+    ),
     (
         "silent",
         "arm_gains three",
-        lambda: _closed_loop(arm_gains=(5.0, 1.0, 2.0)),
+        lambda: _closed_loop(low_level=LowLevelConfig(arm_gains=(5.0, 1.0, 2.0))),
         C,
-        "ClosedLoopConfig.arm_gains",
+        "LowLevelConfig.arm_gains",
     ),
     ("silent", "arm_kp < 0", lambda: _closed_loop(arm_kp=-4.0), C, "ClosedLoopConfig.arm_kp"),
     ("unclear", "mpc_rate 0", lambda: _closed_loop(mpc_rate=0), C, "ClosedLoopConfig.mpc_rate must be"),
     (
         "unclear",
         "low_level_rate 0",
-        lambda: _closed_loop(low_level_rate=0),
+        lambda: _closed_loop(low_level=LowLevelConfig(rate=0)),
         C,
-        "ClosedLoopConfig.low_level_rate",
+        "LowLevelConfig.rate",
     ),
     ("silent", "mpc_rate < 0", lambda: _closed_loop(mpc_rate=-80.0), C, "ClosedLoopConfig.mpc_rate"),
     ("unclear", "mpc_rate NaN", lambda: _closed_loop(mpc_rate=NAN), C, "ClosedLoopConfig.mpc_rate"),
-    ("unclear", "plant_dt 0", lambda: _closed_loop(plant_dt=0.0), C, "ClosedLoopConfig.plant_dt"),
-    ("unclear", "plant_dt NaN", lambda: _closed_loop(plant_dt=NAN), C, "ClosedLoopConfig.plant_dt"),
+    ("unclear", "plant_dt 0", lambda: _closed_loop(plant=PlantConfig(dt=0.0)), C, "PlantConfig.dt"),
+    ("unclear", "plant_dt NaN", lambda: _closed_loop(plant=PlantConfig(dt=NAN)), C, "PlantConfig.dt"),
     (
         "named",
         "plant_dt not dividing",
-        lambda: _closed_loop(plant_dt=0.0007).steps(),
+        lambda: _closed_loop(plant=PlantConfig(dt=0.0007)).steps(),
         C,
-        "plant_dt=0.0007 s must divide",
+        "PlantConfig.dt=0.0007 s must divide",
     ),
     (
         "silent",
         "low level slower than MPC",
-        lambda: _closed_loop(low_level_rate=40.0, mpc_rate=80.0),
+        lambda: _closed_loop(mpc_rate=80.0, low_level=LowLevelConfig(rate=40.0)),
         C,
-        "low_level_rate (40.0 Hz) must be >= mpc_rate",
+        "LowLevelConfig.rate (40.0 Hz) must be >= ClosedLoopConfig.mpc_rate",
     ),
     ("unclear", "duration NaN", lambda: _closed_loop(duration=NAN), C, "ClosedLoopConfig.duration"),
     ("silent", "duration 0", lambda: _closed_loop(duration=0.0), C, "ClosedLoopConfig.duration"),
@@ -315,31 +339,37 @@ CATALOGUE = [
     (
         "silent",
         "base_velocity NaN",
-        lambda: _closed_loop(base_velocity=(NAN, 0, 0)),
+        lambda: _closed_loop(commands=CommandSchedule(base_velocity=(NAN, 0, 0))),
         C,
-        "ClosedLoopConfig.base_velocity",
+        "CommandSchedule.base_velocity",
     ),
     (
         "unclear",
         "base_velocity two",
-        lambda: _closed_loop(base_velocity=(0.2, 0.0)),
+        lambda: _closed_loop(commands=CommandSchedule(base_velocity=(0.2, 0.0))),
         C,
-        "ClosedLoopConfig.base_velocity",
+        "CommandSchedule.base_velocity",
     ),
     (
         "silent",
         "base_yaw_rate NaN",
-        lambda: _closed_loop(base_yaw_rate=NAN),
+        lambda: _closed_loop(commands=CommandSchedule(base_yaw_rate=NAN)),
         C,
-        "ClosedLoopConfig.base_yaw_rate",
+        "CommandSchedule.base_yaw_rate",
     ),
-    ("silent", "ee_force inf", lambda: _closed_loop(ee_force=(0, 0, INF)), C, "ClosedLoopConfig.ee_force"),
+    (
+        "silent",
+        "ee_force inf",
+        lambda: _closed_loop(commands=CommandSchedule(ee_force=(0, 0, INF))),
+        C,
+        "CommandSchedule.ee_force",
+    ),
     (
         "unclear",
         "ee_velocity string",
-        lambda: _closed_loop(ee_velocity="up"),
+        lambda: _closed_loop(commands=CommandSchedule(ee_velocity="up")),
         C,
-        "ClosedLoopConfig.ee_velocity",
+        "CommandSchedule.ee_velocity",
     ),
     (
         "named",
@@ -353,58 +383,64 @@ CATALOGUE = [
     (
         "silent",
         "velocity cutoff 0",
-        lambda: _closed_loop(velocity_cutoff_hz=0.0),
+        lambda: _closed_loop(sensing=SensingConfig(velocity_cutoff_hz=0.0)),
         C,
-        "ClosedLoopConfig.velocity_cutoff_hz",
+        "SensingConfig.velocity_cutoff_hz",
     ),
     (
         "silent",
         "velocity cutoff NaN",
-        lambda: _closed_loop(velocity_cutoff_hz=NAN),
+        lambda: _closed_loop(sensing=SensingConfig(velocity_cutoff_hz=NAN)),
         C,
-        "ClosedLoopConfig.velocity_cutoff_hz",
+        "SensingConfig.velocity_cutoff_hz",
     ),
     (
         "silent",
         "ground friction < 0",
-        lambda: _closed_loop(ground_friction=-0.8),
+        lambda: _closed_loop(plant=PlantConfig(ground_friction=-0.8)),
         C,
-        "ClosedLoopConfig.ground_friction",
+        "PlantConfig.ground_friction",
     ),
     (
         "unclear",
         "arm_reference a tuple",
-        lambda: _closed_loop(arm_reference=(0.5, 0.0, 0.4)),
+        lambda: _closed_loop(commands=CommandSchedule(arm_reference=(0.5, 0.0, 0.4))),
         C,
-        "ClosedLoopConfig.arm_reference must be an ArmReference",
+        "CommandSchedule.arm_reference must be an ArmReference",
     ),
     (
         "unclear",
         "sensor_noise a float",
-        lambda: _closed_loop(sensor_noise=0.01),
+        lambda: _closed_loop(sensing=SensingConfig(noise=0.01)),
         C,
-        "ClosedLoopConfig.sensor_noise must be a SensorNoise",
+        "SensingConfig.noise must be a SensorNoise",
     ),
     (
         "unclear",
         "command_schedule a dict",
-        lambda: _closed_loop(command_schedule={"ee_force": (0, 0, -10)}),
+        lambda: _closed_loop(commands=CommandSchedule(overrides={"ee_force": (0, 0, -10)})),
         C,
-        "ClosedLoopConfig.command_schedule must be a function",
+        "CommandSchedule.overrides must be a function",
     ),
-    ("named", "plant name", lambda: _closed_loop(plant="gazebo"), C, "unknown plant 'gazebo'"),
+    (
+        "named",
+        "plant name",
+        lambda: _closed_loop(plant=PlantConfig(kind="gazebo")),
+        C,
+        "unknown plant 'gazebo'",
+    ),
     (
         "named",
         "scene on the rigid plant",
-        lambda: _closed_loop(scene=[Box((0.1, 0.1, 0.1), (1, 0, 0))]),
+        lambda: _closed_loop(plant=PlantConfig(scene=[Box((0.1, 0.1, 0.1), (1, 0, 0))])),
         C,
-        "need plant='pybullet'",
+        "need PlantConfig(kind='pybullet')",
     ),
     ("named", "disturbance type", lambda: _pb_loop(disturbances=["kick"]), C, "unknown disturbance 'kick'"),
     (
         "named",
         "loop gait a name",
-        lambda: _closed_loop(gait="trot"),
+        lambda: _closed_loop(commands=CommandSchedule(gait="trot")),
         C,
         "gait must be a Gait or GaitSchedule",
     ),
@@ -1222,15 +1258,17 @@ def test_valid_inputs_still_pass_without_warnings():
         warnings.simplefilter("error")
         _pb_loop(
             duration=1.0,
-            kp=30.0,
-            arm_gains=(5.0, 0.5),
             delay=0.0125,
             disturbances=(Kick(0.5, (0, 1, 0)), Push(0.2, 0.1, (10, 0, 0, 0, 0, 1))),
-            scene=[
-                Payload(2.0, (1, 0, 0.05), attach="tether"),
-                Wall((1, 0, 0.5), (-1, 0, 0)),
-                Box((1, 1, 1), (2, 0, 0.5)),
-            ],
+            low_level=LowLevelConfig(kp=30.0, arm_gains=(5.0, 0.5)),
+            plant=PlantConfig(
+                kind="pybullet",
+                scene=[
+                    Payload(2.0, (1, 0, 0.05), attach="tether"),
+                    Wall((1, 0, 0.5), (-1, 0, 0)),
+                    Box((1, 1, 1), (2, 0, 0.5)),
+                ],
+            ),
         ).steps()
         _b1z1()
         load("b1")

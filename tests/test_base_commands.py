@@ -12,6 +12,7 @@ from wbmpc.model.robot import heading, load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.sim.loop_config import CommandSchedule
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +28,8 @@ def test_a_yaw_rate_command_turns_the_robot_the_commanded_way(robot):
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=10), MPCConfig(gait=make_gait("trot")))
     mpc.verbose = False
     config = ClosedLoopConfig(
-        duration=duration, base_velocity=(0.0, 0.0, 0.0), base_yaw_rate=yaw_rate, arm_reference=None
+        duration=duration,
+        commands=CommandSchedule(base_velocity=(0.0, 0.0, 0.0), base_yaw_rate=yaw_rate, arm_reference=None),
     )
     result = run_closed_loop(mpc, config, progress=False)
     assert not result.fell and result.summary["converged_fraction"] >= 0.95
@@ -60,7 +62,9 @@ def heights(robot):
             return solve(q_hat, v_hat, t, replace(commands or Commands(), base_height=target), warm_start)
 
         mpc.solve = solve_at_height
-        config = ClosedLoopConfig(duration=1.0, base_velocity=(0.0, 0.0, 0.0), arm_reference=None)
+        config = ClosedLoopConfig(
+            duration=1.0, commands=CommandSchedule(base_velocity=(0.0, 0.0, 0.0), arm_reference=None)
+        )
         result = run_closed_loop(mpc, config, progress=False)
         assert not result.fell and result.summary["converged_fraction"] >= 0.95
         out[name] = (target, result.log.arrays()["q"][:, 2])

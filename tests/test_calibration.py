@@ -11,6 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from wbmpc import analysis as hl
 from wbmpc import cpin
 from wbmpc.control.arm_task import ArmReference
 from wbmpc.control.low_level import LowLevelController
@@ -22,7 +23,6 @@ from wbmpc.model.friction import JointFriction
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.sim.hardware import HardwareProfile
 from wbmpc.studies import calibrate as cal
-from wbmpc.studies import hardware_logs as hl
 
 STAND, TROT = 2.0, 2.0  # [s]: the standing settles after ~1.2 s; two trot cycles of swing samples
 LEGS = ("hip", "thigh", "calf")
@@ -75,7 +75,7 @@ def _emulated_truth(robot, summary) -> dict[str, dict[str, float]]:
     for a plant step while their damping ``k_d`` acts: sampled at 500 Hz, the torques show an armature
     ``k_d h / 2`` lower (module doc of ``wbmpc.estimation.identification``)."""
     profile = HardwareProfile()
-    options = profile.plant_options(robot)
+    motors = profile.motor_model(robot)
     urdf = _urdf_dynamics(robot)
     kd = {name: summary["low_level"]["kd"] for name in robot.joint_names}
     kd |= dict.fromkeys(robot.arm_joint_names, summary["low_level"]["arm_gains"][1])
@@ -85,9 +85,9 @@ def _emulated_truth(robot, summary) -> dict[str, dict[str, float]]:
         k = robot.joint_names.index(joints[0])
         friction, damping = urdf.get(joints[0], (0.0, 0.0))
         truth[group] = {
-            "coulomb": options["coulomb_friction"][k] + friction,
-            "viscous": options["viscous_friction"][k] + damping,
-            "armature": options["armature"][k] - kd[joints[0]] * hold / 2,
+            "coulomb": motors.coulomb[k] + friction,
+            "viscous": motors.viscous[k] + damping,
+            "armature": motors.armature[k] - kd[joints[0]] * hold / 2,
         }
     return truth
 
@@ -371,8 +371,8 @@ def test_load_robot_with_calibration_moves_the_com_and_sets_the_armature(robot, 
     np.testing.assert_allclose(
         body.lever - nominal.lever, m_link / nominal.mass * np.array(calibration.base_com_offset), atol=1e-12
     )
-    # The same model as the studies' shift_base_com (the implementation moved to wbmpc.model.base_com).
-    reference = hl.shift_base_com(robot, calibration.base_com_offset, 0.39).model.inertias[1]
+    # The same model as wbmpc.model.base_com.shift_base_com.
+    reference = shift_base_com(robot, calibration.base_com_offset, 0.39).model.inertias[1]
     np.testing.assert_allclose(body.toDynamicParameters(), reference.toDynamicParameters(), atol=1e-12)
     armature = np.zeros(robot.nv)
     armature[robot.joint_index_v("FL_calf_joint")] = 0.04

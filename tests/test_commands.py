@@ -14,12 +14,12 @@ from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import GaitSchedule, make_gait, parse_gait_schedule
 from wbmpc.sim.closed_loop import (
     ClosedLoopConfig,
-    _commands,
     _delay_steps,
     base_velocity_heading,
     command_tracking,
     run_closed_loop,
 )
+from wbmpc.sim.loop_config import CommandSchedule, LowLevelConfig
 
 
 @pytest.fixture(scope="module")
@@ -96,16 +96,16 @@ def test_a_change_of_speed_continues_the_trot_cycle():
 
 def test_commands_come_from_the_segment_then_the_callable():
     schedule = parse_gait_schedule("stand:1,trot:2,trot@-0.1/0/0.2:2")
-    config = ClosedLoopConfig(base_velocity=(0.3, 0.0, 0.0), base_yaw_rate=0.1)
-    stand, walk, told = (_commands(config, t, schedule) for t in (0.5, 2.0, 4.0))
+    config = ClosedLoopConfig(commands=CommandSchedule(base_velocity=(0.3, 0.0, 0.0), base_yaw_rate=0.1))
+    stand, walk, told = (config.commands.at(t, schedule) for t in (0.5, 2.0, 4.0))
     np.testing.assert_array_equal(stand["base_velocity"], 0.0)
     assert stand["base_yaw_rate"] == 0.0
     np.testing.assert_array_equal(walk["base_velocity"], [0.3, 0.0, 0.0])
     assert walk["base_yaw_rate"] == 0.1
     np.testing.assert_array_equal(told["base_velocity"], [-0.1, 0.0, 0.0])
     assert told["base_yaw_rate"] == 0.2
-    config.command_schedule = lambda t: {"base_velocity": (0.05, 0.0, 0.0)}
-    np.testing.assert_array_equal(_commands(config, 0.5, schedule)["base_velocity"], [0.05, 0.0, 0.0])
+    config.commands.overrides = lambda t: {"base_velocity": (0.05, 0.0, 0.0)}
+    np.testing.assert_array_equal(config.commands.at(0.5, schedule)["base_velocity"], [0.05, 0.0, 0.0])
 
 
 # --- the arm held still -------------------------------------------------------------------------------
@@ -165,7 +165,9 @@ def test_the_heading_frame_carries_the_hand_when_the_base_turns(robot):
 def test_hold_still_means_still_relative_to_the_walking_body(mpc, robot):
     """arm_reference=None: the hand keeps its place in the heading frame while the robot trots forward, and
     no world-hold finding is raised; the world frame is an explicit choice, and is flagged."""
-    config = ClosedLoopConfig(duration=1.5, arm_reference=None, base_velocity=(0.2, 0.0, 0.0))
+    config = ClosedLoopConfig(
+        duration=1.5, commands=CommandSchedule(arm_reference=None, base_velocity=(0.2, 0.0, 0.0))
+    )
     result = run_closed_loop(mpc, config, progress=False)
     a = result.log.arrays()
     assert not result.fell
@@ -175,7 +177,9 @@ def test_hold_still_means_still_relative_to_the_walking_body(mpc, robot):
     assert abs((hand[-1, 0] - hand[0, 0]) - moved) < 0.03  # and the hand with it
     assert result.summary["ee_max_error_m"] < 0.03
     assert "ee_world_hold_with_walking_base" not in result.summary["diagnostics"]["findings"]
-    world = ClosedLoopConfig(duration=0.1, arm_reference=None, ee_velocity_frame="world")
+    world = ClosedLoopConfig(
+        duration=0.1, commands=CommandSchedule(arm_reference=None, ee_velocity_frame="world")
+    )
     flagged = run_closed_loop(mpc, world, progress=False).summary["diagnostics"]["findings"]
     assert flagged.get("ee_world_hold_with_walking_base", 0) >= 1
 
@@ -185,7 +189,12 @@ def test_stand_segment_stands_still_and_the_delay_is_the_whole_call(mpc, robot):
     over a 2 s stand when the stand segment was commanded the walking speed). With ``delay="measured"`` the
     plan reaches the low level after the whole solve call (here made 12 ms), not the solver's share."""
     schedule = parse_gait_schedule("stand:0.5,trot:1")
-    config = ClosedLoopConfig(duration=1.5, gait=schedule, arm_reference=None, delay="measured", kd=5.0)
+    config = ClosedLoopConfig(
+        duration=1.5,
+        delay="measured",
+        commands=CommandSchedule(gait=schedule, arm_reference=None),
+        low_level=LowLevelConfig(kd=5.0),
+    )
     solve = mpc.solve
 
     def slow_call(*args, **kwargs):
@@ -261,8 +270,9 @@ def test_emulated_robot_with_a_real_solve_delay_keeps_walking(robot):
     fixed rather than ``"measured"`` so that the outcome is this code's, not the load of the machine running
     the suite; the measured-delay runs are the study's (``python -m wbmpc.studies.emulated_calibrated``)
     and the measured-delay wiring is tested with injected solve times (tests/test_sim_harness.py)."""
+    from wbmpc.analysis import record_emulated_run
+    from wbmpc.model.base_com import shift_base_com
     from wbmpc.sim.hardware import HardwareProfile
-    from wbmpc.studies.hardware_logs import record_emulated_run, shift_base_com
 
     calibrated = shift_base_com(robot, HardwareProfile().base_com_offset)
     result, _ = record_emulated_run(
@@ -321,13 +331,16 @@ def test_study_command_lines_refuse_bad_arguments(module, argv, words, capsys, m
     "make, words",
     [
         (
-            lambda: ClosedLoopConfig(ee_velocity_frame="base"),
+            lambda: ClosedLoopConfig(commands=CommandSchedule(ee_velocity_frame="base")),
             "ee_velocity_frame must be 'heading' or 'world'",
         ),
-        (lambda: ClosedLoopConfig(joint_pd="motor"), "joint_pd must be 'controller' or 'drive'"),
+        (
+            lambda: ClosedLoopConfig(low_level=LowLevelConfig(joint_pd="motor")),
+            "joint_pd must be 'controller' or 'drive'",
+        ),
         (lambda: ClosedLoopConfig(mpc_schedule="asap"), "mpc_schedule must be 'ticks' or 'free'"),
-        (lambda: ClosedLoopConfig(command_ramp=(0.0, 1.0)), "command_ramp"),
-        (lambda: ClosedLoopConfig(command_ramp=(1.0,)), "command_ramp"),
+        (lambda: ClosedLoopConfig(commands=CommandSchedule(ramp=(0.0, 1.0))), "CommandSchedule.ramp"),
+        (lambda: ClosedLoopConfig(commands=CommandSchedule(ramp=(1.0,))), "CommandSchedule.ramp"),
         (lambda: OCPSettings(torque_limit_fraction=0.0), "torque_limit_fraction"),
         (lambda: GaitSchedule([(make_gait("trot"), 1.0, (0.1, 0.0, 0.0), "extra")]), "segment 0 must be"),
     ],

@@ -12,6 +12,7 @@ from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import SCHEDULE_TICK, GaitSchedule, make_gait, parse_gait_schedule, to_ticks
 from wbmpc.quick import pick
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.sim.loop_config import CommandSchedule
 
 PLANT_DT, MPC_DT = 0.0005, 0.0125
 MIN_SWING_HEIGHT = -0.005  # [m] the deepest a swing foot may go below the ground
@@ -226,7 +227,9 @@ def test_stand_trot_stand_transitions_on_mpc_ticks(robot):
     out of the ground, the MPC's preview already planning the trot before it starts."""
     schedule = parse_gait_schedule(pick(full="stand:1,trot:4,stand:1", quick="stand:0.5,trot:1.2,stand:0.5"))
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand")))
-    loop = ClosedLoopConfig(duration=schedule.duration, gait=schedule, base_velocity=(0.1, 0.0, 0.0))
+    loop = ClosedLoopConfig(
+        duration=schedule.duration, commands=CommandSchedule(gait=schedule, base_velocity=(0.1, 0.0, 0.0))
+    )
     result = run_closed_loop(mpc, loop, keep_plans=True, progress=False)
     _penetration_checks(result, 2 * round((schedule.start_times[2] - schedule.start_times[1]) / 0.4))
     # Forward, as commanded (0.1 m/s while trotting), not backwards or sideways.
@@ -287,7 +290,9 @@ def test_closed_loop_holds_until_the_first_converged_plan(robot, monkeypatch):
     standing, and then runs on converged plans."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
     _inject_failures(mpc, monkeypatch, lambda call: call <= 3)
-    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.25, arm_reference=None), progress=False)
+    result = run_closed_loop(
+        mpc, ClosedLoopConfig(duration=0.25, commands=CommandSchedule(arm_reference=None)), progress=False
+    )
     log = result.log.arrays()
     assert not result.fell
     np.testing.assert_array_equal(log["hold"][:3], True)
@@ -303,7 +308,9 @@ def test_a_failing_loop_says_why_once_and_counts(robot, monkeypatch, capsys):
     """Every solve after the first fails (injected): one printed line, every failure counted by reason."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
     _inject_failures(mpc, monkeypatch, lambda call: call > 1)
-    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, arm_reference=None), progress=False)
+    result = run_closed_loop(
+        mpc, ClosedLoopConfig(duration=0.1, commands=CommandSchedule(arm_reference=None)), progress=False
+    )
     printed = [line for line in capsys.readouterr().out.splitlines() if "solve failed" in line]
     assert len(printed) == 1 and "solver_exception" in printed[0] and "previous plan kept" in printed[0]
     diagnostics = result.summary["diagnostics"]

@@ -10,8 +10,11 @@ from wbmpc.model.robot import load_b1_z1
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
+from wbmpc.sim.actuators import ActuatedPlant, Actuators, MotorModel
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 from wbmpc.sim.hardware import EstimatedState, HardwareProfile, rear_leg_share
+from wbmpc.sim.loop_config import CommandSchedule, PlantConfig, SensingConfig
+from wbmpc.sim.plant import ContactPlant
 from wbmpc.sim.presets import hardware_config
 from wbmpc.sim.pybullet_plant import PyBulletPlant
 
@@ -31,6 +34,12 @@ def standing_mpc(robot):
     return mpc
 
 
+def _motor_plant(robot, motors: MotorModel, **options) -> ActuatedPlant:
+    """PyBullet behind the motors (the plant's own clipping off: the motors saturate first)."""
+    plant = PyBulletPlant(robot, dt=DT, clip_torques=False, **options)
+    return ActuatedPlant(plant, Actuators(motors, robot.joint_torque_limits, DT))
+
+
 def _airborne(robot, v_joints=None):
     """A state 3 m above the ground (no contacts for the next tens of milliseconds)."""
     q = robot.q_nominal.copy()
@@ -43,36 +52,41 @@ def _airborne(robot, v_joints=None):
 
 # ---------------------------------------------------------------------------------------------- profile
 def test_profile_values_and_switches(robot):
-    options = HardwareProfile().plant_options(robot)
+    motors = HardwareProfile().motor_model(robot)
     calf = robot.joint_names.index("FL_calf_joint")
     arm = robot.joint_names.index("joint2")
-    assert options["coulomb_friction"][calf] == 1.0 and options["armature"][calf] == 0.04
-    assert options["armature"][arm] == 0.005 and options["torque_latency"] == 0.003
-    np.testing.assert_allclose(options["base_com_offset"], [-0.19, 0.0, 0.0])
-    ideal = HardwareProfile.ideal().plant_options(robot)
-    assert not any(np.any(ideal[k]) for k in ("coulomb_friction", "viscous_friction", "armature"))
-    assert ideal["base_com_offset"] is None and ideal["torque_latency"] == 0.0
+    assert motors.coulomb[calf] == 1.0 and motors.armature[calf] == 0.04
+    assert motors.armature[arm] == 0.005 and motors.latency == 0.003
+    np.testing.assert_allclose(HardwareProfile().base_com_offset, [-0.19, 0.0, 0.0])
+    ideal_profile = HardwareProfile.ideal()
+    ideal = ideal_profile.motor_model(robot)
+    assert not any(np.any(getattr(ideal, k)) for k in ("coulomb", "viscous", "armature"))
+    assert ideal_profile.base_com_offset is None and ideal.latency == 0.0
     config = hardware_config(duration=1.0)
-    assert (config.plant, config.state, config.delay) == ("pybullet", "estimated", "measured")
-    assert (config.kp, config.kd, config.arm_gains, config.velocity_cutoff_hz) == (
+    assert (config.plant.kind, config.sensing.state, config.delay) == ("pybullet", "estimated", "measured")
+    low = config.low_level
+    assert (low.kp, low.kd, low.arm_gains, low.joint_pd, config.sensing.velocity_cutoff_hz) == (
         0.0,
         20.0,
         (5.0, 1.0),
+        "drive",
         50.0,
     )
+    assert config.commands.ramp == (0.3, 0.5) and config.delay_compensation
 
 
 @pytest.mark.parametrize(
-    "kwargs, match",
+    "make, match",
     [
-        ({"state": "filtered"}, "state must be"),
-        ({"hardware": HardwareProfile()}, "needs plant='pybullet'"),
-        ({"hardware": "b1"}, "HardwareProfile"),
+        (lambda: SensingConfig(state="filtered"), "state must be"),
+        (lambda: PlantConfig(hardware=HardwareProfile()), "needs PlantConfig\\(kind='pybullet'\\)"),
+        (lambda: PlantConfig(kind="pybullet", hardware="b1"), "HardwareProfile"),
+        (lambda: ClosedLoopConfig(sensing="estimated"), "ClosedLoopConfig.sensing must be a SensingConfig"),
     ],
 )
-def test_config_rejects_bad_state_and_hardware(kwargs, match):
+def test_config_rejects_bad_state_and_hardware(make, match):
     with pytest.raises(ValueError, match=match):
-        ClosedLoopConfig(**kwargs)
+        make()
 
 
 def test_profile_rejects_bad_values():
@@ -86,9 +100,8 @@ def test_profile_rejects_bad_values():
 def test_friction_torque_opposes_velocity(robot):
     c, b, vs = 1.0, 0.2, 0.05
     rates = np.linspace(-2.0, 2.0, robot.nj)  # includes small rates of both signs
-    with PyBulletPlant(
-        robot, dt=DT, coulomb_friction=c, viscous_friction=b, friction_velocity=vs, joint_damping=False
-    ) as plant:
+    motors = MotorModel(coulomb=c, viscous=b, friction_velocity=vs)
+    with _motor_plant(robot, motors, joint_damping=False) as plant:
         plant.reset(*_airborne(robot, rates))
         plant.step(np.zeros(robot.nj))
         tau_f = plant.friction_torque
@@ -103,7 +116,7 @@ def test_friction_decelerates_a_free_joint(robot):
     rates[calf] = 1.0
     final = []
     for c in (0.0, 1.0):
-        with PyBulletPlant(robot, dt=DT, coulomb_friction=c, joint_damping=False) as plant:
+        with _motor_plant(robot, MotorModel(coulomb=c), joint_damping=False) as plant:
             plant.reset(*_airborne(robot, rates))
             for _ in range(20):
                 state = plant.step(np.zeros(robot.nj))
@@ -114,13 +127,13 @@ def test_friction_decelerates_a_free_joint(robot):
 def test_armature_adds_reflected_inertia(robot):
     """A calf torque step in the air: the acceleration is that of M + diag(I_a), not of M."""
     calf = robot.joint_names.index("FL_calf_joint")
-    armature = HardwareProfile().plant_options(robot)["armature"]
+    armature = HardwareProfile().motor_model(robot).armature
     tau = np.zeros(robot.nj)
     tau[calf] = 2.0
     n = 20
     measured = []
     for a in (0.0, armature):
-        with PyBulletPlant(robot, dt=DT, armature=a, joint_damping=False) as plant:
+        with _motor_plant(robot, MotorModel(armature=a), joint_damping=False) as plant:
             plant.reset(*_airborne(robot))
             for _ in range(n):
                 state = plant.step(tau)
@@ -156,7 +169,7 @@ def _standing_share(robot, **options) -> tuple[float, np.ndarray]:
 
 def test_com_offset_moves_the_weight_to_the_rear_legs(robot):
     nominal, _ = _standing_share(robot)
-    offset = HardwareProfile().plant_options(robot)["base_com_offset"]
+    offset = np.asarray(HardwareProfile().base_com_offset)
     shifted, q = _standing_share(robot, base_com_offset=offset)
     print(f"rear-leg share: nominal {nominal:.3f}, with the base CoM offset {offset} m: {shifted:.3f}")
     assert nominal == pytest.approx(0.48, abs=0.02)  # the model's CoM is 1.3 cm ahead of the centre
@@ -166,7 +179,7 @@ def test_com_offset_moves_the_weight_to_the_rear_legs(robot):
 
 def test_torque_latency_delays_a_torque_step(robot):
     latency = 0.003
-    with PyBulletPlant(robot, dt=DT, torque_latency=latency) as plant:
+    with _motor_plant(robot, MotorModel(latency=latency)) as plant:
         plant.reset(*_airborne(robot))
         step_at, applied = 4, []
         for k in range(20):
@@ -175,6 +188,29 @@ def test_torque_latency_delays_a_torque_step(robot):
     first = int(np.argmax(np.array(applied) > 0.5))
     assert (first - step_at) * DT == pytest.approx(latency)
     assert np.all(np.array(applied[first:]) == 1.0)
+
+
+def test_motors_work_in_front_of_the_rigid_plant_too(robot):
+    """The motors are no PyBullet feature: on the rigid-contact plant a saturated, delayed torque step
+    reaches the joints at the limit, ``latency`` late, with the friction torque of the joint rates added."""
+    limits = robot.joint_torque_limits
+    latency, c, vs = 0.002, 0.5, 0.05
+    rigid = ContactPlant(robot.model, robot.foot_frames, dt=DT, foot_radius=robot.foot_radius)
+    plant = ActuatedPlant(
+        rigid, Actuators(MotorModel(coulomb=c, friction_velocity=vs, latency=latency), limits, DT)
+    )
+    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    stance = np.ones(robot.n_feet, bool)
+    applied = []
+    for k in range(10):
+        rates = plant.state.v[6:]
+        plant.step(np.full(robot.nj, 1e4 if k >= 2 else 0.0), stance)
+        applied.append(plant.motor_torque)
+        np.testing.assert_allclose(plant.friction_torque, -c * np.tanh(rates / vs), atol=1e-12)
+    delay = round(latency / DT)
+    np.testing.assert_array_equal(applied[1 + delay], 0.0)
+    np.testing.assert_array_equal(applied[2 + delay], limits)  # clipped at the limits, then delayed
+    assert np.all(plant.torque_clip_counts == 10 - 2)
 
 
 def test_sensor_noise_has_the_stated_standard_deviation(robot):
@@ -203,12 +239,10 @@ def test_estimated_state_closed_loop_keeps_standing(standing_mpc):
         imu=HardwareProfile().imu, encoder_noise=5e-4, encoder_velocity_noise=0.05
     )
     config = ClosedLoopConfig(
-        plant="pybullet",
         duration=1.5,
-        state="estimated",
-        hardware=sensors,
-        velocity_cutoff_hz=50.0,
-        base_velocity=(0.0, 0.0, 0.0),
+        plant=PlantConfig(kind="pybullet", hardware=sensors),
+        sensing=SensingConfig(state="estimated", velocity_cutoff_hz=50.0),
+        commands=CommandSchedule(base_velocity=(0.0, 0.0, 0.0)),
     )
     result = run_closed_loop(standing_mpc, config, progress=False)
     err = result.summary["estimate_error"]
@@ -226,7 +260,7 @@ def test_hardware_profile_keeps_standing(standing_mpc):
     """Every mismatch on (fixed one-period computation delay instead of the measured one, reproducible)."""
     result = run_closed_loop(
         standing_mpc,
-        hardware_config(duration=1.5, delay=0.0125, base_velocity=(0.0, 0.0, 0.0)),
+        hardware_config(duration=1.5, delay=0.0125, commands=CommandSchedule(base_velocity=(0.0, 0.0, 0.0))),
         progress=False,
     )
     s = result.summary

@@ -19,6 +19,7 @@ from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.quick import pick
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.sim.loop_config import PlantConfig
 
 DT = 0.002  # the low-level (logging) rate, 500 Hz
 # A MEMS-grade IMU after its start-up calibration, and 12-bit-ish encoders.
@@ -44,7 +45,9 @@ def trot(robot):
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=8), MPCConfig(gait=gait, dt_max=0.06))
     mpc.verbose = False
     result = run_closed_loop(
-        mpc, ClosedLoopConfig(plant="pybullet", duration=pick(full=2.0, quick=1.0)), progress=False
+        mpc,
+        ClosedLoopConfig(duration=pick(full=2.0, quick=1.0), plant=PlantConfig(kind="pybullet")),
+        progress=False,
     )
     assert not result.fell
     log = result.log.arrays()

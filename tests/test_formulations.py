@@ -14,6 +14,7 @@ from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.formulations import FORMULATIONS, make_formulation
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.sim.loop_config import CommandSchedule, LowLevelConfig
 from wbmpc.solver import codegen
 
 NAMES = list(FORMULATIONS)
@@ -187,7 +188,11 @@ def test_generated_functions_equal_casadi_derivatives(robot, name):
 def test_short_trot_in_closed_loop_stays_upright(robot, name):
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=9, formulation=name), MPCConfig())
     mpc.verbose = False
-    config = ClosedLoopConfig(duration=0.5, base_velocity=(0.1, 0.0, 0.0), kp=30.0, kd=2.0)
+    config = ClosedLoopConfig(
+        duration=0.5,
+        commands=CommandSchedule(base_velocity=(0.1, 0.0, 0.0)),
+        low_level=LowLevelConfig(kp=30.0, kd=2.0),
+    )
     result = run_closed_loop(mpc, config, progress=False)
     assert not result.fell
     assert result.summary["max_tilt_rad"] < 0.1

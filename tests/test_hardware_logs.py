@@ -4,8 +4,9 @@ synthetic signals; the base CoM offset identified from the leg torques of an emu
 import numpy as np
 import pytest
 
+from wbmpc import analysis as hl
 from wbmpc.io.logs import RunLog
-from wbmpc.studies import hardware_logs as hl
+from wbmpc.model.base_com import base_com_link, shift_base_com
 
 DT = 0.002  # low-level period [s]
 
@@ -98,9 +99,9 @@ def test_foot_forces_from_static_torques_match_the_static_equilibrium():
     eq = static_equilibrium(robot, robot.q_nominal, np.ones(robot.n_feet, bool))
     forces = hl.foot_forces_from_torques(robot, robot.q_nominal[None], eq.tau[None])[0]
     assert forces[:, 2].sum() == pytest.approx(robot.mass * robot.gravity, rel=0.02)
-    shifted = hl.shift_base_com(robot, (-0.19, 0.0, 0.0), front_force_ratio=0.4)
+    shifted = shift_base_com(robot, (-0.19, 0.0, 0.0), front_force_ratio=0.4)
     assert shifted.front_force_ratio == 0.4 and robot.front_force_ratio == 0.5
-    link, mass = hl.base_com_link(robot)
+    link, mass = base_com_link(robot)
     assert link == "trunk"
     moved = shifted.model.inertias[1].lever - robot.model.inertias[1].lever
     np.testing.assert_allclose(
@@ -114,12 +115,14 @@ def _emulated_standing_log(robot, profile, seconds: float = 1.0) -> RunLog:
     of the nominal model and a joint PD, logged at 500 Hz as a robot would (commanded torques, encoders,
     odometry)."""
     from wbmpc.model.statics import static_equilibrium
-    from wbmpc.sim.pybullet_plant import PyBulletPlant
+    from wbmpc.sim.closed_loop import ClosedLoopConfig, make_plant
+    from wbmpc.sim.loop_config import PlantConfig
 
     eq = static_equilibrium(robot, robot.q_nominal, np.ones(robot.n_feet, bool))
     rows = {"t": [], "q": [], "v": [], "tau": []}
     dt = 0.0005
-    with PyBulletPlant(robot, dt=dt, **profile.plant_options(robot)) as plant:
+    loop = ClosedLoopConfig(plant=PlantConfig(kind="pybullet", dt=dt, hardware=profile))
+    with make_plant(robot, loop) as plant:  # the emulated robot: its motors in front of PyBullet
         state = plant.reset(robot.q_nominal, np.zeros(robot.nv))
         tau = eq.tau
         for k in range(round(seconds / dt)):

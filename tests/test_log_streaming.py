@@ -20,6 +20,7 @@ from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim import closed_loop
 from wbmpc.sim.closed_loop import ClosedLoopConfig, ClosedLoopLog, run_closed_loop
+from wbmpc.sim.loop_config import CommandSchedule
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CHUNK = 0.2  # [s] of simulated time per chunk in these tests: 100 signal rows, 16 solves
@@ -32,8 +33,9 @@ def mpc():
     return mpc
 
 
-def _config(duration=0.5, **kwargs):
-    return ClosedLoopConfig(duration=duration, base_velocity=(0.0, 0.0, 0.0), **kwargs)
+def _config(duration=0.5, overrides=None):
+    commands = CommandSchedule(base_velocity=(0.0, 0.0, 0.0), overrides=overrides)
+    return ClosedLoopConfig(duration=duration, commands=commands)
 
 
 def _raise_after(t_stop, exception=RuntimeError):
@@ -101,7 +103,7 @@ def test_the_in_memory_lists_never_hold_more_than_a_chunk(mpc, tmp_path, monkeyp
 
 
 def test_an_exception_inside_the_loop_leaves_a_partial_log_and_goes_on(mpc, tmp_path):
-    config = _config(1.0, command_schedule=_raise_after(0.34))
+    config = _config(1.0, overrides=_raise_after(0.34))
     with pytest.raises(RuntimeError, match="stop at t = 0.35"):
         run_closed_loop(mpc, config, progress=False, log_path=tmp_path / "run.npz", log_chunk=CHUNK)
     log = load_log(tmp_path / "run.npz")
@@ -136,7 +138,7 @@ def test_ctrl_c_in_the_plant_step_leaves_a_partial_log(mpc, tmp_path, monkeypatc
 def test_a_killed_process_leaves_chunks_that_load_as_partial(mpc, tmp_path, monkeypatch):
     # a process killed mid-run never consolidates: no abort handling, the chunks and meta.json stay
     monkeypatch.setattr(ClosedLoopLog, "abort", lambda log, exc: None)
-    config = _config(1.0, command_schedule=_raise_after(0.45))
+    config = _config(1.0, overrides=_raise_after(0.45))
     with pytest.raises(RuntimeError):
         run_closed_loop(mpc, config, progress=False, log_path=tmp_path / "run.npz", log_chunk=CHUNK)
     parts = tmp_path / "run.npz.parts"

@@ -12,6 +12,7 @@ from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.sim.loop_config import CommandSchedule, PlantConfig
 
 TOL = 1e-3  # the solver tolerance (paper)
 
@@ -274,7 +275,9 @@ def test_a_closed_loop_keeps_applying_the_last_converged_plan(robot, monkeypatch
         return fakes[-1]
 
     monkeypatch.setattr(mpc, "_solver", unconverged_after_the_first)
-    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, arm_reference=None), progress=False)
+    result = run_closed_loop(
+        mpc, ClosedLoopConfig(duration=0.1, commands=CommandSchedule(arm_reference=None)), progress=False
+    )
     log = result.log.arrays()
     assert len(fakes) == 2 * (len(log["solve_t"]) - 1) >= 10  # warm start and cold retry per tick
     assert log["success"][0] and not log["success"][1:].any() and log["fallback"][1:].all()
@@ -359,7 +362,9 @@ def test_bad_state_is_named(robot, standing):
 def test_closed_loop_trot_on_pybullet_stays_upright(robot):
     """The same MPC on a physics engine (contacts from collisions, not the schedule), pure feed-forward."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("trot")))
-    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.4, plant="pybullet"), progress=False)
+    result = run_closed_loop(
+        mpc, ClosedLoopConfig(duration=0.4, plant=PlantConfig(kind="pybullet")), progress=False
+    )
     s = result.summary
     assert s["plant"] == "pybullet"
     assert not result.fell and s["max_tilt_rad"] < 0.2
@@ -372,7 +377,7 @@ def test_closed_loop_trot_on_pybullet_stays_upright(robot):
 def test_unknown_plant_is_named(robot):
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))
     with pytest.raises(ValueError, match="unknown plant 'mujoco'"):
-        run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, plant="mujoco"), progress=False)
+        run_closed_loop(mpc, ClosedLoopConfig(duration=0.1, plant=PlantConfig(kind="mujoco")), progress=False)
 
 
 def test_limit_rows_have_unit_slacks_and_the_same_feasible_set(robot):

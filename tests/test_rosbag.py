@@ -26,6 +26,7 @@ from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+from wbmpc.sim.loop_config import CommandSchedule
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +38,9 @@ def robot():
 def run_log(robot):
     """A short real closed loop (0.3 s standing: 150 low-level samples, 24 solves)."""
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04))
-    result = run_closed_loop(mpc, ClosedLoopConfig(duration=0.3, arm_reference=None), progress=False)
+    result = run_closed_loop(
+        mpc, ClosedLoopConfig(duration=0.3, commands=CommandSchedule(arm_reference=None)), progress=False
+    )
     return result.run_log()
 
 

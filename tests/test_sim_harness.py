@@ -12,6 +12,7 @@ from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 from wbmpc.sim.disturbances import Kick, Push
+from wbmpc.sim.loop_config import CommandSchedule, LowLevelConfig, PlantConfig, SensingConfig
 from wbmpc.sim.sensing import SensorNoise, StateSensor
 
 
@@ -109,7 +110,12 @@ def test_closed_loop_with_and_without_delay_keeps_standing(robot, delay, tmp_pat
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=7), MPCConfig(gait=make_gait("stand")))
     mpc.verbose = False
     config = ClosedLoopConfig(
-        duration=0.3, plant="pybullet", kd=5.0, delay=delay, velocity_cutoff_hz=50.0, arm_reference=None
+        duration=0.3,
+        delay=delay,
+        plant=PlantConfig(kind="pybullet"),
+        low_level=LowLevelConfig(kd=5.0),
+        sensing=SensingConfig(velocity_cutoff_hz=50.0),
+        commands=CommandSchedule(arm_reference=None),
     )
     if delay == "measured":  # injected solve times: the outcome does not depend on this machine's speed
         solve, calls = mpc.solve, []
@@ -132,10 +138,10 @@ def test_closed_loop_with_and_without_delay_keeps_standing(robot, delay, tmp_pat
     elif delay == "measured":  # each plan applies after its own solve time, rounded up to plant steps
         solves, applies = _expected_solve_and_apply_steps(600, 25)
         assert len(solves) == 12 < 0.3 * 80  # fewer solves than 80 Hz: none starts before the last applies
-        np.testing.assert_allclose(log.solve_t, np.array(solves) * config.plant_dt, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(log.apply_t, np.array(applies) * config.plant_dt, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(log.solve_t, np.array(solves) * config.plant.dt, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(log.apply_t, np.array(applies) * config.plant.dt, rtol=0, atol=1e-12)
     else:
-        assert np.allclose(lag[1:], 0.0125, atol=config.plant_dt)
+        assert np.allclose(lag[1:], 0.0125, atol=config.plant.dt)
     run = load_log(result.save(tmp_path / f"run_{delay}"))
     assert run["q"].shape == (len(log.t), robot.nq)
     assert run["foot_forces"].shape == (len(log.t), 4, 3)
@@ -155,7 +161,11 @@ def test_kick_changes_the_base_velocity_once(robot):
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=7), MPCConfig(gait=make_gait("stand")))
     mpc.verbose = False
     config = ClosedLoopConfig(
-        duration=0.2, plant="pybullet", kd=5.0, arm_reference=None, disturbances=(Kick(0.1, (0.0, 0.3, 0.0)),)
+        duration=0.2,
+        disturbances=(Kick(0.1, (0.0, 0.3, 0.0)),),
+        plant=PlantConfig(kind="pybullet"),
+        low_level=LowLevelConfig(kd=5.0),
+        commands=CommandSchedule(arm_reference=None),
     )
     log = run_closed_loop(mpc, config, progress=False).log.arrays()
     v_y = np.array(
@@ -172,8 +182,8 @@ def test_kick_changes_the_base_velocity_once(robot):
 def test_bad_harness_configuration_is_named():
     with pytest.raises(ValueError, match="delay must be"):
         ClosedLoopConfig(delay="sometimes")
-    with pytest.raises(ValueError, match="need plant='pybullet'"):
-        ClosedLoopConfig(plant="rigid", disturbances=(Kick(0.1, (0, 1, 0)),))
+    with pytest.raises(ValueError, match="need PlantConfig\\(kind='pybullet'\\)"):
+        ClosedLoopConfig(disturbances=(Kick(0.1, (0, 1, 0)),), plant=PlantConfig(kind="rigid"))
     with pytest.raises(ValueError, match="Push.target"):
         Push(0.0, 0.1, (1, 0, 0), target="arm")
     with pytest.raises(ValueError, match="Kick.delta_v"):
@@ -190,12 +200,12 @@ def test_a_fall_between_solves_ends_the_run_on_the_tick_it_happens(robot):
     mpc.verbose = False
     config = ClosedLoopConfig(
         duration=0.4,
-        plant="pybullet",
-        kd=5.0,
         delay=0.06,
-        arm_reference=None,
         max_tilt=0.05,
         disturbances=(Kick(0.1, (0, 0, 0, 3.0, 0, 0)),),
+        plant=PlantConfig(kind="pybullet"),
+        low_level=LowLevelConfig(kd=5.0),
+        commands=CommandSchedule(arm_reference=None),
     )
     result = run_closed_loop(mpc, config, progress=False)
     tilts = np.array([tilt(q) for q in result.log.q])

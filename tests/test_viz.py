@@ -15,10 +15,13 @@ from conftest import fake_plan
 
 from wbmpc.model.robot import load_b1_z1, load_robot
 from wbmpc.viz import (
+    CAMERA_DIRECTION,
+    CAMERA_FOV,
     Viewer,
     ViewerUnavailableError,
     camera_for_motion,
     resolve_mesh_path,
+    robot_radius,
     simplify_mesh,
     vertex_normals,
     visual_model,
@@ -74,8 +77,10 @@ def test_visual_model_matches_robot_model(robot):
 
 def test_visual_model_falls_back_to_primitives(robot, monkeypatch):
     # Another package folder (a new cache entry) and mesh references that lead nowhere.
-    monkeypatch.setattr(viz, "default_package_dirs", lambda: ("/nonexistent/mesh/dir",))
-    monkeypatch.setattr(viz, "resolve_mesh_path", lambda filename, *args: "/nonexistent/mesh/dir/x.dae")
+    monkeypatch.setattr("wbmpc.viz.geometry.default_package_dirs", lambda: ("/nonexistent/mesh/dir",))
+    monkeypatch.setattr(
+        "wbmpc.viz.geometry.resolve_mesh_path", lambda filename, *args: "/nonexistent/mesh/dir/x.dae"
+    )
     with pytest.warns(UserWarning, match="primitive shapes"):
         model, geometry = visual_model(robot)
     assert model.nq == robot.model.nq
@@ -193,11 +198,11 @@ def test_camera_is_set_from_the_motion_bounds():
     base = np.array([[0.0, 0.0, 0.5], [1.0, 0.2, 0.5], [0.4, -0.2, 0.6]])
     target, position = camera_for_motion(base, robot_radius=0.8)
     np.testing.assert_allclose(target, [0.5, 0.0, 0.55])  # centre of the base box
-    direction = np.asarray(viz.CAMERA_DIRECTION) / np.linalg.norm(viz.CAMERA_DIRECTION)
+    direction = np.asarray(CAMERA_DIRECTION) / np.linalg.norm(CAMERA_DIRECTION)
     np.testing.assert_allclose((position - target) / np.linalg.norm(position - target), direction)
     # The sphere holding the motion (half the box diagonal + the robot radius) fills the vertical view.
     radius = np.linalg.norm([1.0, 0.4, 0.1]) / 2 + 0.8
-    assert np.linalg.norm(position - target) == pytest.approx(radius / np.sin(np.radians(viz.CAMERA_FOV / 2)))
+    assert np.linalg.norm(position - target) == pytest.approx(radius / np.sin(np.radians(CAMERA_FOV / 2)))
     distances = []
     for length in (0.0, 1.0, 3.0):
         line = np.column_stack([np.linspace(0.0, length, 5), np.zeros(5), np.full(5, 0.5)])
@@ -214,7 +219,7 @@ def test_replay_frames_the_motion(viewer, robot, tmp_path):
     qs[:, 0] += np.linspace(0.0, 1.0, len(times))
     viewer.animation(qs, times)
     np.testing.assert_allclose(viewer.camera_target, [robot.q_nominal[0] + 0.5, *robot.q_nominal[1:3]])
-    expected = camera_for_motion(qs[:, :3], viz.robot_radius(viewer.model, viewer.geometry, robot.q_nominal))
+    expected = camera_for_motion(qs[:, :3], robot_radius(viewer.model, viewer.geometry, robot.q_nominal))
     np.testing.assert_allclose(viewer.camera_position, expected[1])
     long_distance = np.linalg.norm(viewer.camera_position - viewer.camera_target)
     viewer.animation(qs[:2], times[:2])  # 0.1 m: a closer camera
@@ -224,7 +229,7 @@ def test_replay_frames_the_motion(viewer, robot, tmp_path):
 
 def test_robot_radius_holds_the_robot(robot):
     model, geometry = visual_model(robot)
-    radius = viz.robot_radius(model, geometry, robot.q_nominal)
+    radius = robot_radius(model, geometry, robot.q_nominal)
     data = model.createData()
     pin.framesForwardKinematics(model, data, robot.q_nominal)
     reach = max(

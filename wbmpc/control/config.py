@@ -76,6 +76,9 @@ class Commands:
         ee_force: Force [N] the environment applies on the end effector, world axes (e.g. a pulled load
             pulls back: negative x when the robot pulls towards +x).
         base_height: Nominal base height [m]; ``None`` keeps the robot's nominal pose height.
+        gait: The gait or :class:`~wbmpc.ocp.gait.GaitSchedule` of this solve's stage contacts (a command
+            schedule's, :class:`wbmpc.control.command_schedule.CommandSchedule`); ``None``: the MPC's
+            configured ``MPCConfig.gait``.
     """
 
     base_linear_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -83,6 +86,7 @@ class Commands:
     ee_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ee_force: np.ndarray = field(default_factory=lambda: np.zeros(3))
     base_height: float | None = None
+    gait: Gait | GaitSchedule | None = None
 
     def validated(self) -> Commands:
         out = {}
@@ -95,6 +99,10 @@ class Commands:
             if not np.all(np.isfinite(value)):
                 raise ValueError(f"command {name} contains NaN or inf: {value}")
             out[name] = value
+        if self.gait is not None and not isinstance(self.gait, Gait | GaitSchedule):
+            raise ValueError(
+                f"command gait must be a Gait or GaitSchedule (wbmpc.ocp.gait), got {self.gait!r}"
+            )
         if self.base_height is not None:
             out["base_height"] = checks.number(
                 "command base_height", self.base_height, low=0.0, high=5.0, low_open=True, unit="m"

@@ -18,12 +18,13 @@ import pinocchio as pin
 
 from wbmpc import checks
 from wbmpc.control.config import DT_BOUNDS, SOLVERS, Commands, MPCConfig, MPCSolution, default_weights
-from wbmpc.control.prechecks import run_prechecks
+from wbmpc.control.prechecks import Prechecks
 from wbmpc.control.push_recovery import PushRecovery
 from wbmpc.model.robot import FOOT_NAMES, Robot, heading
 from wbmpc.model.statics import default_force_distribution, static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
 from wbmpc.ocp.gait import (
+    Gait,
     GaitSchedule,
     swing_vertical_velocity,
 )
@@ -80,7 +81,8 @@ class WholeBodyMPC:
         self.previous: MPCSolution | None = None
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0, "holds": 0}
         self.stats["swing_aborts"] = 0
-        self.push_recovery = PushRecovery(self)  # swings aborted after a push (MPCConfig.kick_recovery)
+        self.push_recovery = PushRecovery(robot)  # swings aborted after a push (MPCConfig.kick_recovery)
+        self.prechecks = Prechecks(robot)  # physical checks of each solve request, with their own data
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.last_inputs: dict | None = None
@@ -197,7 +199,7 @@ class WholeBodyMPC:
         cfg, robot = self.config, self.robot
         dts = self.time_steps()
         t_nodes = node_times(dts, t)[:-1]
-        sample = cfg.gait.sample(t_nodes)
+        sample = self.gait(commands).sample(t_nodes)
         contact = sample.contact.astype(float)
         swing_vz = np.zeros_like(sample.swing_phase)
         swinging = ~sample.contact
@@ -350,9 +352,9 @@ class WholeBodyMPC:
         q_hat[3:7] /= norm
         commands = (commands or Commands()).validated()
         # Cheap physical checks (~0.1 ms): explain a failure before it happens; refuse ill-posed commands.
-        gait = self.config.gait
+        gait = self.gait(commands)
         gait = gait.gait_at(t) if isinstance(gait, GaitSchedule) else gait  # the gait in force now
-        findings = tuple(run_prechecks(self.robot, q_hat, v_hat, commands, gait))
+        findings = tuple(self.prechecks.run(q_hat, v_hat, commands, gait))
         for finding in findings:
             if finding.code in REFUSED_FINDINGS:
                 raise ValueError(f"command refused: {finding.message}")
@@ -514,13 +516,22 @@ class WholeBodyMPC:
         """The stage parameters after a push (see :mod:`wbmpc.control.push_recovery`): aborted swings
         (``MPCConfig.kick_recovery``) and, while recovering, the released end-effector velocity
         (``MPCConfig.kick_ee_release``); ``params`` itself when neither acts (no push detected)."""
-        self.push_recovery.update(q_hat, v_hat, t, commands)
-        return self.push_recovery.parameters(params, q_hat, v_hat, t, commands)
+        recovery = self.push_recovery
+        aborts = recovery.swing_aborts
+        recovery.update(q_hat, v_hat, t, commands, self.config, self.previous, self.gait(commands))
+        self.stats["swing_aborts"] += recovery.swing_aborts - aborts
+        return recovery.parameters(params, q_hat, v_hat, t, commands, self.config, self.time_steps())
 
-    def contact_plan(self, times) -> np.ndarray:
-        """Contact flags (4, n) at ``times`` [s]: the gait schedule with any aborted swing (the one plan the
-        closed loop's plant, state estimator and logs share with the MPC)."""
-        return self.push_recovery.contact(times)
+    def gait(self, commands: Commands | None = None) -> Gait | GaitSchedule:
+        """The gait of a solve: the commands' (a command schedule's) if they carry one, else the config's."""
+        if commands is not None and commands.gait is not None:
+            return commands.gait
+        return self.config.gait
+
+    def contact_plan(self, times, gait: Gait | GaitSchedule | None = None) -> np.ndarray:
+        """Contact flags (4, n) at ``times`` [s]: ``gait`` (default: the configured one) with any aborted
+        swing (the one plan the closed loop's plant, state estimator and logs share with the MPC)."""
+        return self.push_recovery.contact(times, self.config.gait if gait is None else gait)
 
     @property
     def aborted_swings(self) -> dict[int, float]:

@@ -6,58 +6,22 @@ objects that name the problem and its numbers (e.g. the arm joint that cannot ho
 end-effector force).
 
 Example:
-    >>> findings = run_prechecks(robot, q, v, commands, gait)
+    >>> findings = Prechecks(robot).run(q, v, commands, gait)
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field
-from typing import Literal
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.findings import Finding, findings_to_dicts, has_errors
 from wbmpc.model.robot import Robot, heading
 from wbmpc.ocp.gait import Gait
 
-Severity = Literal["warning", "error"]
-
-
-# --- findings -------------------------------------------------------------------------------------------
-@dataclass
-class Finding:
-    """One result of a precheck.
-
-    Attributes:
-        code: Short machine-readable name, e.g. ``"ee_force_exceeds_torque_limit"``.
-        severity: ``"error"``: the command cannot be met as given (a limit is exceeded, the solve will fail
-            or the plan will not track it); ``"warning"``: suspicious or close to a limit.
-        message: One sentence naming the problem and its numbers.
-        data: The numbers, JSON-serialisable (for logs and run summaries).
-    """
-
-    code: str
-    severity: Severity
-    message: str
-    data: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    def __str__(self) -> str:
-        return f"[{self.severity}] {self.code}: {self.message}"
-
-
-def findings_to_dicts(findings: Iterable[Finding]) -> list[dict]:
-    """Findings as plain dicts (for a plan's metadata or a run summary)."""
-    return [f.to_dict() for f in findings]
-
-
-def has_errors(findings: Iterable[Finding]) -> bool:
-    return any(f.severity == "error" for f in findings)
-
+__all__ = ["Finding", "Prechecks", "findings_to_dicts", "has_errors", "run_prechecks"]
 
 # Fraction of a torque limit above which a hold torque is reported as a warning.
 TORQUE_WARNING_FRACTION = 0.9
@@ -68,6 +32,8 @@ def ee_force_feasibility(
     q: np.ndarray,
     ee_force: np.ndarray,
     mu: float | None = None,
+    *,
+    info: _RobotInfo | None = None,
 ) -> list[Finding]:
     """Can the arm hold the commanded end-effector force in the current pose, and can the feet?
 
@@ -91,7 +57,8 @@ def ee_force_feasibility(
     """
     force = np.asarray(ee_force, dtype=float).reshape(3)
     findings: list[Finding] = []
-    weight = _info(robot).weight
+    info = _resolve(robot, info)
+    weight = info.weight
     if force[2] > weight:
         findings.append(
             Finding(
@@ -145,14 +112,14 @@ def ee_force_feasibility(
 
 
 def arm_hold_torques(
-    robot: Robot, q: np.ndarray, ee_force: np.ndarray
+    robot: Robot, q: np.ndarray, ee_force: np.ndarray, *, info: _RobotInfo | None = None
 ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Static arm joint torques [N m] holding ``ee_force`` (on the end effector, world axes) and gravity.
 
     Returns:
         Torques ``g_arm(q) - J_arm^T F`` (n_arm,), the arm joint names and their torque limits [N m].
     """
-    info = _info(robot)
+    info = _resolve(robot, info)
     if info.ee_id is None:
         raise ValueError(f"{robot.name} has no arm")
     q = np.asarray(q, dtype=float)
@@ -169,7 +136,7 @@ STRIDE_COMFORT_FRACTION = 0.5
 SPEED_TOLERANCE = 1e-3
 
 
-def leg_reach(robot: Robot, q: np.ndarray | None = None) -> dict:
+def leg_reach(robot: Robot, q: np.ndarray | None = None, *, info: _RobotInfo | None = None) -> dict:
     """Horizontal reach [m] of the feet about their nominal positions, from the leg kinematics and limits.
 
     For each foot, the last two joints above it (thigh and calf of a Unitree leg) give the links
@@ -189,7 +156,7 @@ def leg_reach(robot: Robot, q: np.ndarray | None = None) -> dict:
         ``{"reach": min over feet [m], "per_foot": {foot: reach}, "hip_height": mean h [m],
         "leg_length": mean l1 + l2 [m]}``.
     """
-    model, data = robot.model, _data(robot)
+    model, data = robot.model, _resolve(robot, info).data
     q = robot.q_nominal if q is None else np.asarray(q, dtype=float)
     pin.framesForwardKinematics(model, data, q)
     per_foot, heights, lengths = {}, [], []
@@ -229,6 +196,8 @@ def speed_feasibility(
     gait: Gait,
     base_linear_velocity: np.ndarray,
     base_angular_velocity: np.ndarray,
+    *,
+    info: _RobotInfo | None = None,
 ) -> list[Finding]:
     """Is the commanded base speed within what the gait can produce?
 
@@ -279,7 +248,7 @@ def speed_feasibility(
             )
         )
         return findings
-    geometry, rel = _nominal_geometry(robot)
+    geometry, rel = _nominal_geometry(robot, info)
     reach = geometry["reach"]
     stance = (1.0 - gait.swing_fraction) * gait.period
     # Foot speed relative to the base: v_xy + omega_z x p (p: nominal foot position from the base).
@@ -320,7 +289,9 @@ def speed_feasibility(
     return findings
 
 
-def joint_state_limits(robot: Robot, q: np.ndarray, v: np.ndarray, tol: float = 1e-6) -> list[Finding]:
+def joint_state_limits(
+    robot: Robot, q: np.ndarray, v: np.ndarray, tol: float = 1e-6, *, info: _RobotInfo | None = None
+) -> list[Finding]:
     """Joint positions outside their limits and joint speeds above their limits.
 
     Args:
@@ -341,7 +312,7 @@ def joint_state_limits(robot: Robot, q: np.ndarray, v: np.ndarray, tol: float = 
             Finding("state_not_finite", "error", f"state has NaN or inf at indices {bad}", {"indices": bad})
         ]
     findings: list[Finding] = []
-    info = _info(robot)
+    info = _resolve(robot, info)
     names, lower, upper = info.joint_names, info.lower, info.upper
     qj = q[7:]
     out = np.flatnonzero((qj < lower - tol) | (qj > upper + tol))
@@ -406,7 +377,7 @@ HAND_SPEED_SHARE = 0.25
 HAND_SPEED_TOLERANCE = 0.05  # [m/s]
 
 
-def arm_reach(robot: Robot) -> dict:
+def arm_reach(robot: Robot, *, info: _RobotInfo | None = None) -> dict:
     """The arm's reach [m]: the length of its kinematic chain from the first arm joint to the end effector
     (the sum of the joint-to-joint distances at the nominal pose: the hand cannot get further than this from
     that joint).
@@ -416,7 +387,7 @@ def arm_reach(robot: Robot) -> dict:
     """
     if not robot.has_arm:
         return {}
-    info = _info(robot)
+    info = _resolve(robot, info)
     if info.arm_reach is None:
         model, data = info.model, info.data
         pin.framesForwardKinematics(model, data, robot.q_nominal)
@@ -427,7 +398,7 @@ def arm_reach(robot: Robot) -> dict:
     return {k: info.arm_reach[k] for k in ("shoulder_joint", "reach")}
 
 
-def ee_world_hold(robot: Robot, q: np.ndarray, commands) -> list[Finding]:
+def ee_world_hold(robot: Robot, q: np.ndarray, commands, *, info: _RobotInfo | None = None) -> list[Finding]:
     """Does a constant world end-effector velocity command outrun the base? (a hand held still in the world
     while the base walks anchors the robot until the arm's reach runs out).
 
@@ -454,8 +425,8 @@ def ee_world_hold(robot: Robot, q: np.ndarray, commands) -> list[Finding]:
     yaw_rate = float(np.asarray(commands.base_angular_velocity, dtype=float)[2])
     if np.linalg.norm(base[:2]) < SPEED_TOLERANCE and abs(yaw_rate) < SPEED_TOLERANCE:
         return []
-    reach = arm_reach(robot)
-    info = _info(robot)
+    info = _resolve(robot, info)
+    reach = arm_reach(robot, info=info)
     pin.framesForwardKinematics(info.model, info.data, q)
     shoulder = info.data.oMi[info.arm_reach["joint_id"]].translation
     hand = info.data.oMf[info.ee_id].translation
@@ -480,7 +451,7 @@ def ee_world_hold(robot: Robot, q: np.ndarray, commands) -> list[Finding]:
             f"not move with the base commanded at {_vec2(base_world)} m/s and {yaw_rate:.2f} rad/s: the hand "
             f"leaves the arm's reach ({reach['reach']:.2f} m from {reach['shoulder_joint']}) after at most "
             f"{t_out:.1f} s, {walked:.2f} m of walking, and then anchors the robot; to hold it still "
-            "relative to the body use the heading frame (ClosedLoopConfig.ee_velocity_frame='heading' or "
+            "relative to the body use the heading frame (CommandSchedule.ee_velocity_frame='heading' or "
             "ArmReference.still()), or give it the base's velocity",
             {
                 "ee_velocity": ee_velocity.tolist(),
@@ -501,6 +472,7 @@ def run_prechecks(
     commands=None,
     gait: Gait | None = None,
     mu: float | None = None,
+    info: _RobotInfo | None = None,
 ) -> list[Finding]:
     """Run every precheck on a solve request (cheap: well under a millisecond in total).
 
@@ -511,23 +483,25 @@ def run_prechecks(
         commands: :class:`wbmpc.control.mpc.Commands`, or ``None`` (no command checks).
         gait: The gait, or ``None`` (no speed check).
         mu: Friction coefficient for the end-effector force check, or ``None``.
+        info: The robot's data (:class:`Prechecks` passes its own); ``None``: computed for this call.
 
     Returns:
         All findings, errors first.
     """
-    findings = joint_state_limits(robot, q, v)
+    info = _resolve(robot, info)
+    findings = joint_state_limits(robot, q, v, info=info)
     if commands is not None:
         findings += arm_commands_without_arm(robot, commands)
         state_ok = not any(f.code == "state_not_finite" for f in findings)
         ee_force = np.asarray(getattr(commands, "ee_force", np.zeros(3)), dtype=float)
         if state_ok and ee_force.shape == (3,) and np.all(np.isfinite(ee_force)):
-            findings += ee_force_feasibility(robot, q, ee_force, mu)
+            findings += ee_force_feasibility(robot, q, ee_force, mu, info=info)
         if gait is not None:
             findings += speed_feasibility(
-                robot, gait, commands.base_linear_velocity, commands.base_angular_velocity
+                robot, gait, commands.base_linear_velocity, commands.base_angular_velocity, info=info
             )
         if state_ok:
-            findings += ee_world_hold(robot, q, commands)
+            findings += ee_world_hold(robot, q, commands, info=info)
     return sorted(findings, key=lambda f: f.severity != "error")
 
 
@@ -552,17 +526,22 @@ class _RobotInfo:
     arm_reach: dict | None = None  # see arm_reach()
 
 
-_INFO: dict[int, _RobotInfo] = {}
+class Prechecks:
+    """The prechecks of one robot, owning the Pinocchio data and the per-model numbers they use.
 
+    :meth:`of` gives the robot's own (created on first use and kept on the robot, so its lifetime is the
+    robot's; rebuilt if ``robot.model`` was replaced); the module's functions use it.
 
-def _info(robot: Robot) -> _RobotInfo:
-    """Cached per-model data; rebuilt if another model took the same id."""
-    model = robot.model
-    info = _INFO.get(id(model))
-    if info is None or info.model is not model:
+    Args:
+        robot: The robot.
+    """
+
+    def __init__(self, robot: Robot):
+        model = robot.model
         arm_names = list(robot.arm_joint_names)
         arm_idx = np.array([robot.joint_index_v(n) for n in arm_names], dtype=int)
-        info = _RobotInfo(
+        self.robot = robot
+        self.info = _RobotInfo(
             model=model,
             data=model.createData(),
             weight=robot.mass * robot.gravity,
@@ -575,19 +554,22 @@ def _info(robot: Robot) -> _RobotInfo:
             upper=model.upperPositionLimit[7:].copy(),
             velocity_limits=model.velocityLimit[6:].copy(),
         )
-        _INFO[id(model)] = info
-    return info
+
+    def run(self, q, v, commands=None, gait: Gait | None = None, mu: float | None = None) -> list[Finding]:
+        """:func:`run_prechecks` for this robot, with its own data."""
+        return run_prechecks(self.robot, q, v, commands, gait, mu, info=self.info)
 
 
-def _data(robot: Robot) -> pin.Data:
-    return _info(robot).data
+def _resolve(robot: Robot, info: _RobotInfo | None) -> _RobotInfo:
+    """The given per-robot data, or a new one (a direct call outside a :class:`Prechecks`)."""
+    return Prechecks(robot).info if info is None else info
 
 
-def _nominal_geometry(robot: Robot) -> tuple[dict, np.ndarray]:
-    """Leg reach and nominal foot offsets from the base, computed once per model."""
-    info = _info(robot)
+def _nominal_geometry(robot: Robot, info: _RobotInfo | None = None) -> tuple[dict, np.ndarray]:
+    """Leg reach and nominal foot offsets from the base, computed once per :class:`Prechecks`."""
+    info = _resolve(robot, info)
     if info.reach is None:
-        info.reach = leg_reach(robot)
+        info.reach = leg_reach(robot, info=info)
         q0 = robot.q_nominal
         pin.framesForwardKinematics(info.model, info.data, q0)
         info.foot_offsets = np.array(

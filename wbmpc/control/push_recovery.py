@@ -35,25 +35,29 @@ MAX_TOUCHDOWN_SPEED = 1.0
 class PushRecovery:
     """The swing-abort state of one MPC (reset with the MPC).
 
+    It holds no reference to its MPC: every call receives what it reads (the MPC's configuration, its
+    last converged plan, the node times of the solve), so configuration changes apply at once.
+
     Args:
-        mpc: The :class:`wbmpc.control.mpc.WholeBodyMPC` it belongs to (its ``config``, ``robot``,
-            ``previous`` plan and ``stats`` are read at each call, so config changes apply at once).
+        robot: The MPC's robot (feet, end effector, mass).
 
     Attributes:
         aborted: Foot index to the interval ``(landing, end)`` [s] of its aborted swing: the foot is brought
             down until ``landing`` and in stance from then until ``end`` (its nominal touchdown).
         recovering: True after a push until the base velocity is back near the command.
         pushed_at: Time [s] of the last detected push (``None``: none yet).
+        swing_aborts: Swings aborted since the last :meth:`reset`.
     """
 
-    def __init__(self, mpc):
-        self.mpc = mpc
+    def __init__(self, robot):
+        self.robot = robot
         self.aborted: dict[int, tuple[float, float]] = {}
         self.landing: dict[
             int, float
         ] = {}  # foot -> landing time [s] fixed at the first solve after its abort
         self.recovering = False
         self.pushed_at: float | None = None
+        self.swing_aborts = 0
 
     def reset(self) -> None:
         """Forget every aborted swing and the recovery state."""
@@ -61,23 +65,24 @@ class PushRecovery:
         self.landing = {}
         self.recovering = False
         self.pushed_at = None
+        self.swing_aborts = 0
 
     # --- detection ------------------------------------------------------------------------------------------
-    def update(self, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands) -> bool:
+    def update(self, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands, cfg, previous, gait) -> bool:
         """Detect a push at time ``t`` [s] and abort the early swings; returns whether a push was detected.
 
         A push is a measured horizontal base velocity (base frame, as ``v_hat[0:2]``) more than
-        ``kick_recovery`` [m/s] away from the last converged plan's at ``t``.
+        ``cfg.kick_recovery`` [m/s] away from the last converged plan's (``previous``, an
+        :class:`~wbmpc.control.config.MPCSolution` or ``None``) at ``t``. ``gait``: the gait walked.
         """
-        mpc = self.mpc
-        cfg, robot = mpc.config, mpc.robot
+        robot = self.robot
         self.aborted = {i: span for i, span in self.aborted.items() if t < span[1] - 1e-9}
         self.landing = {i: tl for i, tl in self.landing.items() if i in self.aborted}
         if cfg.kick_recovery is None:
             return False
         pushed = False
-        if mpc.previous is not None:
-            v_plan = interp_rows(np.array([t]), mpc.previous.node_times, mpc.previous.v)[0]
+        if previous is not None:
+            v_plan = interp_rows(np.array([t]), previous.node_times, previous.v)[0]
             pushed = bool(np.linalg.norm(v_hat[0:2] - v_plan[0:2]) > cfg.kick_recovery)
         if not (pushed or self.recovering):
             return False  # the every-tick case: nothing more to compute
@@ -89,36 +94,38 @@ class PushRecovery:
         if pushed:
             self.pushed_at = t
         if pushed or (self.recovering and cfg.kick_recovery_hold):
-            now = cfg.gait.sample(np.array([t]))
+            now = gait.sample(np.array([t]))
             for i in range(robot.n_feet):
                 phase = now.swing_phase[i, 0]
                 if now.contact[i, 0] or phase >= cfg.kick_recovery_phase or i in self.aborted:
                     continue
                 end = t + (1.0 - phase) * now.swing_duration[i, 0]
                 self.aborted[i] = (t, end)  # landing set by parameters() from the foot height
-                mpc.stats["swing_aborts"] += 1
+                self.swing_aborts += 1
         return pushed
 
     # --- the contact plan -----------------------------------------------------------------------------------
-    def contact(self, times) -> np.ndarray:
-        """Contact flags (4, n) at ``times`` [s]: the gait schedule with the aborted swings (stance from
-        their landing to their nominal touchdown); the schedule itself when no swing is aborted."""
+    def contact(self, times, gait) -> np.ndarray:
+        """Contact flags (4, n) at ``times`` [s]: ``gait`` (a gait or schedule) with the aborted swings
+        (stance from their landing to their nominal touchdown); the gait's own when no swing is aborted."""
         times = np.atleast_1d(np.asarray(times, dtype=float))
-        contact = self.mpc.config.gait.sample(times).contact.copy()
+        contact = gait.sample(times).contact.copy()
         for i, (landing, end) in self.aborted.items():
             contact[i, (times >= landing - 1e-9) & (times < end - 1e-9)] = True
         return contact
 
-    def parameters(self, params: dict, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands) -> dict:
+    def parameters(
+        self, params: dict, q_hat: np.ndarray, v_hat: np.ndarray, t: float, commands, cfg, time_steps
+    ) -> dict:
         """The stage parameters after a push: aborted swings (feet brought down at ``touchdown_speed`` and
         planned in stance until their nominal touchdown) and, while recovering, the released end-effector
-        velocity (:meth:`ee_release`); ``params`` itself when neither applies."""
-        params = self.ee_release(params, q_hat, v_hat, t)
+        velocity (:meth:`ee_release`); ``params`` itself when neither applies. ``cfg``: the MPC's
+        configuration; ``time_steps``: the solve's time steps [s] (N-1,)."""
+        params = self.ee_release(params, q_hat, v_hat, t, cfg, time_steps)
         if not self.aborted:
             return params
-        mpc = self.mpc
-        cfg, robot = mpc.config, mpc.robot
-        t_nodes = node_times(mpc.time_steps(), t)[:-1]
+        robot = self.robot
+        t_nodes = node_times(time_steps, t)[:-1]
         contact = params["contact"] > 0.5
         swing_vz = np.array(params["swing_vz"], dtype=float)
         heights = self._foot_heights(q_hat)
@@ -146,7 +153,9 @@ class PushRecovery:
         force_des = default_force_distribution(contact, weight / robot.gravity, robot.gravity, ratio)
         return {**params, "contact": contact.astype(float), "swing_vz": swing_vz, "force_des": force_des}
 
-    def ee_release(self, params: dict, q_hat: np.ndarray, v_hat: np.ndarray, t: float) -> dict:
+    def ee_release(
+        self, params: dict, q_hat: np.ndarray, v_hat: np.ndarray, t: float, cfg, time_steps
+    ) -> dict:
         """While recovering, the end-effector velocity reference starts at the measured one and ramps to the
         command over ``MPCConfig.kick_ee_release`` [s]; ``params`` itself otherwise.
 
@@ -155,8 +164,8 @@ class PushRecovery:
         asks the arm for a velocity jump its joint velocity and torque limits cannot give, and every solve
         fails (measured: a 0.8 m/s forward kick fails every solve, warm and cold, until the fall).
         """
-        release = self.mpc.config.kick_ee_release
-        robot = self.mpc.robot
+        release = cfg.kick_ee_release
+        robot = self.robot
         if release is None or not self.recovering or not robot.has_arm:
             return params
         data = robot.model.createData()
@@ -164,7 +173,7 @@ class PushRecovery:
         v_ee = pin.getFrameVelocity(
             robot.model, data, robot.frame_id(robot.ee_frame), pin.LOCAL_WORLD_ALIGNED
         ).linear
-        t_nodes = node_times(self.mpc.time_steps(), t)[:-1]
+        t_nodes = node_times(time_steps, t)[:-1]
         weight = np.clip(1.0 - (t_nodes - t) / release, 0.0, 1.0)  # 1 at the measurement, 0 after release
         command = np.asarray(params["ee_velocity"], dtype=float)
         ee_velocity = command + (v_ee[:, None] - command) * weight[None, :]
@@ -172,7 +181,7 @@ class PushRecovery:
 
     def _foot_heights(self, q: np.ndarray) -> np.ndarray:
         """Height [m] of each foot's sole above the ground (z = 0) at configuration ``q``."""
-        robot = self.mpc.robot
+        robot = self.robot
         data = robot.model.createData()
         pin.framesForwardKinematics(robot.model, data, q)
         return np.array(

@@ -109,7 +109,7 @@ class FrictionIdentification:
         minus the identified friction at the logged joint rate and the armature times the joint
         acceleration (``np.gradient`` of the rates); parameters not identified count as 0 and joints in no
         group keep the command. Analyses that solve the equations of motion for the contact forces (e.g.
-        :func:`wbmpc.studies.hardware_logs.identify_com_offset`) then see the rigid-body torques: a
+        :func:`wbmpc.analysis.identify_com_offset`) then see the rigid-body torques: a
         standing B1 creeps at up to 0.03 rad/s, where its 1 N m Coulomb friction is still ~0.5 N m.
 
         Raises:

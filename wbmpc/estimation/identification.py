@@ -22,7 +22,7 @@ both ends. Both sides, the features included, are then smoothed by one Savitzky-
 ``window`` seconds): a linear filter applied alike to the equation and to its features leaves the fit
 unbiased and removes the noise of the finite differences.
 
-Signals (what a robot records; :data:`wbmpc.studies.hardware_logs.ROBOT_TOPICS`):
+Signals (what a robot records; :data:`wbmpc.analysis.ROBOT_TOPICS`):
 
 * joints: the encoders (``q[:, 7:]``, ``v[:, 6:]``, the joint states);
 * base: pose and linear velocity of the state estimator (``q_meas``/``v_meas``, the odometry; the log's

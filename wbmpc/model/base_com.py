@@ -2,7 +2,7 @@
 
 The B1's rear legs carry ~60 % of its weight standing, as if the trunk's centre of mass sat ~19 cm behind
 the URDF's. :func:`shift_base_com` rebuilds the model with such an offset (identified from a standing log by
-:func:`wbmpc.studies.hardware_logs.identify_com_offset`, stored in a calibration file by
+:func:`wbmpc.analysis.identify_com_offset`, stored in a calibration file by
 :mod:`wbmpc.model.calibration`). The mass that moves is the heaviest link rigidly attached to the root
 (:func:`base_com_link`), as the emulated robot moves it (:func:`wbmpc.model.urdf.offset_base_com`),
 so an identified offset rebuilds that robot's model.

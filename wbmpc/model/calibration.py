@@ -1,8 +1,8 @@
 """Calibration file of a robot: what a lab identifies once and every later run loads with the model.
 
 A :class:`Calibration` holds the parameters the nominal URDF model gets wrong on the real robot: the base
-link's centre-of-mass offset and the front/rear force split (:func:`wbmpc.studies.hardware_logs.
-identify_com_offset`), and per joint the motor friction and the reflected rotor inertia (armature)
+link's centre-of-mass offset and the front/rear force split (:func:`wbmpc.analysis.identify_com_offset`),
+and per joint the motor friction and the reflected rotor inertia (armature)
 (:func:`wbmpc.estimation.identification.identify_joint_friction`). ``python -m wbmpc.studies.calibrate``
 writes one from a log; :func:`wbmpc.model.robot.load_robot` (``calibration=``) applies one
 (:meth:`Calibration.apply`): the base CoM moved (:func:`wbmpc.model.base_com.shift_base_com`), the front

@@ -1,5 +1,16 @@
 """URDF handling shared by the plants and the viewer: where a mesh reference points, the URDF PyBullet loads
 (locked joints made fixed, absolute mesh paths, no visuals), a base CoM moved in the URDF text.
+
+What :func:`preprocess_urdf` does for PyBullet (the plant loads a temporary copy; the original is untouched):
+
+* ``<visual>`` elements are dropped: DIRECT mode never renders, and parsing the Collada visual meshes took
+  ~5 s per load. Collision meshes (the Z1 gripper STLs) keep their geometry; ``package://`` URIs are
+  rewritten to absolute paths (``example-robot-data`` is located through its installed distribution, other
+  packages by searching the folders above the URDF).
+* Locked joints (``robot.locked_joints``, e.g. ``joint5, joint6, jointGripper``) are rewritten as *fixed*
+  joints whose origin includes the rotation by the locked angle. This is exactly what Pinocchio's
+  ``buildReducedModel`` does, so the two models have the same rigid bodies; a stiff position motor or a
+  fixed constraint would instead add compliance, drift and solver load.
 """
 
 from __future__ import annotations

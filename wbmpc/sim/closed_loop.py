@@ -1,21 +1,25 @@
 """Closed-loop simulation: MPC at 80 Hz, joint interpolation + PD at 500 Hz, a plant at 1-2 kHz.
 
-Two plants: Pinocchio's forward dynamics with the scheduled feet in rigid contact
-(:class:`wbmpc.sim.plant.ContactPlant`, the paper's benchmark setting) or PyBullet
-(:class:`wbmpc.sim.pybullet_plant.PyBulletPlant`: contacts, friction, scene objects, disturbances).
+:class:`ClosedLoop` is the scheduler. Each plant step it hands a due plan to the low level, starts a solve on
+an MPC tick (the commands of :class:`~wbmpc.control.command_schedule.CommandSchedule` at that time, the arm's
+end-effector command, the state the controller sees), computes the joint torques on a low-level tick, and
+steps the plant (any :class:`~wbmpc.sim.plant.Plant`: the rigid-contact plant of the paper's benchmark or
+PyBullet, behind the emulated robot's motors when a hardware profile is set,
+:class:`~wbmpc.sim.actuators.ActuatedPlant`). Logging, the failure reports, the progress bar and the summary's
+extra entries are observers (:mod:`wbmpc.sim.observers`). The loop never changes the MPC's configuration:
+the run's gait reaches the MPC with each solve's commands.
 
 Timing: without computation delay (``delay="off"``) the simulated time waits for each solve, as in the
 paper's first simulations. With delay (``"measured"``: the wall time of the whole solve call on this machine,
-or a fixed number of seconds)
-the simulator keeps running on the previous plan while the solver works: the new plan reaches the low
-level ``delay`` later (rounded up to plant steps), and the next solve starts at the first MPC tick after
-that (a real-time loop cannot start a solve before the previous one returns).
+or a fixed number of seconds) the simulator keeps running on the previous plan while the solver works: the
+new plan reaches the low level ``delay`` later (rounded up to plant steps), and the next solve starts at the
+first MPC tick after that (a real-time loop cannot start a solve before the previous one returns).
 
 The controller sees the state through :class:`wbmpc.sim.sensing.StateSensor` (ground truth by default;
-optional noise and the paper's 50 Hz joint-velocity filter). Every run keeps a log that converts to the
-columnar :class:`wbmpc.io.logs.RunLog` (``result.run_log()``, ``result.save(path)``); with
-``run_closed_loop(..., log_path=...)`` it is streamed to disk in chunks as the run goes (bounded memory; a
-run stopped by Ctrl-C or an exception leaves a readable log marked partial).
+optional noise and the paper's 50 Hz joint-velocity filter) or the state estimator. Every run keeps a log
+that converts to the columnar :class:`wbmpc.io.logs.RunLog` (``result.run_log()``, ``result.save(path)``);
+with ``run_closed_loop(..., log_path=...)`` it is streamed to disk in chunks as the run goes (bounded memory;
+a run stopped by Ctrl-C or an exception leaves a readable log marked partial).
 """
 
 from __future__ import annotations
@@ -23,26 +27,31 @@ from __future__ import annotations
 import math
 import signal
 import threading
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
 
-from wbmpc.control.arm_task import ArmReference, heading_frame, velocity_command
 from wbmpc.control.command_ramp import CommandRamp
 from wbmpc.control.delay import DelayEstimate, predict_state
 from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCSolution, WholeBodyMPC
-from wbmpc.ocp.time_grid import node_times
+from wbmpc.sim.actuators import ActuatedPlant, Actuators
+from wbmpc.sim.arm_commander import ArmCommander
 from wbmpc.sim.disturbances import Kick, Push
-from wbmpc.sim.failure_reporter import FailureReporter
 from wbmpc.sim.hardware import EstimatedState, PlannedContacts, estimate_errors
-from wbmpc.sim.loop_config import ClosedLoopConfig
+from wbmpc.sim.loop_config import (
+    ClosedLoopConfig,
+    CommandSchedule,
+    LowLevelConfig,
+    PlantConfig,
+    SensingConfig,
+)
 from wbmpc.sim.loop_log import ClosedLoopLog, ClosedLoopResult
 from wbmpc.sim.motor_drive import MotorDrive
-from wbmpc.sim.plant import ContactPlant, fallen
+from wbmpc.sim.observers import FailureObserver, LogRecorder, LoopObserver, ProgressBar
+from wbmpc.sim.plant import ContactPlant, Plant, fallen
 from wbmpc.sim.sensing import StateSensor
 from wbmpc.sim.summary import (
     base_velocity_heading,
@@ -53,9 +62,14 @@ from wbmpc.sim.summary import (
 )
 
 __all__ = [
+    "ClosedLoop",
     "ClosedLoopConfig",
     "ClosedLoopLog",
     "ClosedLoopResult",
+    "CommandSchedule",
+    "LowLevelConfig",
+    "PlantConfig",
+    "SensingConfig",
     "base_velocity_heading",
     "blasfeo_record",
     "command_tracking",
@@ -74,12 +88,13 @@ def run_closed_loop(
     keep_plans: bool = False,
     log_path: str | Path | None = None,
     log_chunk: float = 1.0,
+    observers: Sequence[LoopObserver] = (),
 ) -> ClosedLoopResult:
-    """Simulate the MPC in closed loop on the rigid-contact plant.
+    """Simulate the MPC in closed loop.
 
     Args:
-        mpc: The MPC (built once; its gait decides the scheduled contacts of the plant too).
-        config: Run settings.
+        mpc: The MPC (built once; it is prepared and reset here, its configuration is not changed).
+        config: Run settings (default :class:`ClosedLoopConfig`: the rigid plant, a trot at 0.2 m/s).
         q0: Initial configuration; the robot's nominal pose by default (feet on the ground).
         progress: Show a tqdm progress bar.
         keep_plans: Keep every MPC plan in the log (memory heavy; for replays of predictions; not with
@@ -89,11 +104,16 @@ def run_closed_loop(
             is consolidated there, marked ``meta["partial"]``, and the exception goes on. ``None``: the
             log stays in memory (``result.save(path)`` writes it).
         log_chunk: Simulated time [s] per chunk written to disk with ``log_path``.
+        observers: Extra :class:`~wbmpc.sim.observers.LoopObserver` s, called after the built-in ones.
 
     Returns:
         The log, a summary dict (see :func:`summarize`) and whether the robot fell.
+
+    Raises:
+        ValueError: On a bad config (before anything is built) or ``keep_plans`` with ``log_path``.
     """
     config = config or ClosedLoopConfig()
+    config.check()
     if log_path is None:
         log = ClosedLoopLog()
     else:
@@ -101,20 +121,32 @@ def run_closed_loop(
             raise ValueError("keep_plans needs the in-memory log: plans are not streamed (log_path)")
         if not log_chunk > 0:
             raise ValueError(f"log_chunk must be a duration > 0 [s], got {log_chunk!r}")
-        chunk_steps = max(1, round(log_chunk / config.plant_dt))
-        meta = {"requested_duration_s": config.duration, "chunk_s": chunk_steps * config.plant_dt}
+        chunk_steps = max(1, round(log_chunk / config.plant.dt))
+        meta = {"requested_duration_s": config.duration, "chunk_s": chunk_steps * config.plant.dt}
         log = ClosedLoopLog.streaming(log_path, chunk_steps, meta)
-    mpc_gait = mpc.config.gait
-    if config.gait is not None:
-        mpc.config = replace(mpc.config, gait=config.gait)  # one schedule for the MPC and the plant
+    n_steps, per_mpc, _ = config.steps()
+    observers = [
+        LogRecorder(log, keep_plans),
+        FailureObserver(),
+        *([ProgressBar(n_steps // per_mpc)] if progress else []),
+        *observers,
+    ]
+    loop = None
     try:
         with _DeferredInterrupt() as interrupt:
-            return _run(mpc, config, q0, progress, keep_plans, log, interrupt)
+            loop = ClosedLoop(mpc, config, q0, observers)
+            log.summarize = lambda columns: loop.summary(columns, False)  # an interrupted run's partial log
+            fell = loop.run(interrupt)
+            summary = log.finish(lambda columns: loop.summary(columns, fell))
+            return ClosedLoopResult(log=log, summary=summary, fell=fell)
     except BaseException as exc:  # Ctrl-C or an error: a streamed log keeps what ran (then re-raise)
         log.abort(exc)
         raise
     finally:
-        mpc.config = replace(mpc.config, gait=mpc_gait)
+        for observer in observers:
+            observer.close()
+        if loop is not None:
+            loop.plant.close()
 
 
 class _DeferredInterrupt:
@@ -151,259 +183,263 @@ class _DeferredInterrupt:
             signal.signal(signal.SIGINT, self._previous)
 
 
-def _run(mpc, config, q0, progress, keep_plans, log: ClosedLoopLog, interrupt=None) -> ClosedLoopResult:
-    robot = mpc.robot
-    schedule = mpc.config.gait
-    model, data = robot.model, robot.model.createData()
-    n_steps, per_mpc, per_low = config.steps()
-    plant = make_plant(robot, config)
-    q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
-    state = plant.reset(q0, np.zeros(model.nv))
-    kp, kd = _joint_gains(robot, config)
-    # A calibrated MPC model brings the joints' identified friction: the low level feeds it forward.
-    calibration = getattr(robot, "calibration", None)
-    friction = (
-        calibration.joint_friction(robot) if calibration is not None and config.friction_feedforward else None
-    )
-    low = LowLevelController(kp, kd, torque_limits=robot.joint_torque_limits, friction=friction)
-    drive = None
-    if config.joint_pd == "drive":
-        latency = 0.0 if config.hardware is None else config.hardware.torque_latency
-        drive = MotorDrive(kp, kd, robot.joint_torque_limits, round(latency / config.plant_dt))
-    sensor = StateSensor(model, per_low * config.plant_dt, config.sensor_noise, config.velocity_cutoff_hz)
-    # The MPC's plan (the gait schedule with any swing aborted after a push) decides the rigid plant's
-    # contacts and the estimator's, and is what the logs record.
-    contact_plan = getattr(mpc, "contact_plan", None) or (lambda times: schedule.sample(times).contact)
-    estimator = None
-    if config.state == "estimated":
-        estimator = EstimatedState(
-            robot,
-            PlannedContacts(contact_plan),
-            per_low * config.plant_dt,
-            config.hardware,
-            config.velocity_cutoff_hz,
-        )
-    ee_id = robot.frame_id(robot.ee_frame) if robot.has_arm else None
-    if hasattr(mpc, "prepare"):
-        mpc.prepare()  # the solvers are built before the clock starts, not inside the first solves
-    mpc.reset()
-    arm_reference = config.arm_reference
-    hold = None  # the heading-frame hold point of an ``ee_velocity`` command: [position, time of it]
-    if ee_id is not None and (arm_reference is not None or config.ee_velocity_frame == "heading"):
-        pin.framesForwardKinematics(model, data, q0)
-        if arm_reference is None:
-            hold = [ArmReference.still().centered_at(q0, data.oMf[ee_id].translation).center, 0.0]
-        elif arm_reference.center is None:
-            arm_reference = arm_reference.centered_at(q0, data.oMf[ee_id].translation)
-    kicks = {round(d.time / config.plant_dt): d for d in config.disturbances if isinstance(d, Kick)}
-    pushes = [d for d in config.disturbances if isinstance(d, Push)]
-    fell = False
-    tau = np.zeros(robot.nj)
-    ee_ref = np.full(3, np.nan)
-    q_meas, v_meas = sensor.measure(state.q, state.v)
-    if estimator is not None:
-        q_meas, v_meas = estimator.reset(state.q, state.v)
-    pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
-    ramp = None if config.command_ramp is None else CommandRamp(*config.command_ramp)
-    expected_delay = DelayEstimate(None if config.delay in ("off", "measured") else float(config.delay))
-    busy_until = 0  # plant step before which no new solve can start (the solver is working)
-    next_solve = 0  # plant step of the next MPC tick
-    contacts_from = 0  # plant step at which period_contacts begins
-    cmd = _commands(config, 0.0, schedule)
-    scene_names = plant.body_names
-    reporter = FailureReporter(prefix="[closed loop]")  # one line per new failure reason, then counts
+class ClosedLoop:
+    """The components of one run and the scheduler that steps them (:meth:`run`).
 
-    def run_summary(columns: Mapping, fell: bool) -> dict:  # columns from memory or the streamed file
-        clipped = low.violations if drive is None else drive.violations
-        summary = summarize(mpc, columns, config, fell, clipped, plant)
-        summary["joint_pd"] = config.joint_pd
+    Built by :func:`run_closed_loop`; its attributes are what observers read.
+
+    Attributes:
+        mpc, robot, config: The controller, its robot, the run's settings.
+        plant: The plant (:func:`make_plant`), behind the motors with a hardware profile.
+        low: The low level (:class:`~wbmpc.control.low_level.LowLevelController`); drive: the motor drives
+            (:class:`~wbmpc.sim.motor_drive.MotorDrive`) with ``joint_pd="drive"``, else ``None``.
+        sensor, estimator: What the controller sees (ground truth through the sensor model, or the state
+            estimator with ``sensing.state="estimated"``).
+        gait: The gait walked (the command schedule's, else the MPC's).
+        step, t: Current plant step and its time [s]; state: the plant's state.
+        q_meas, v_meas: The state the controller saw last; tau: the joint torques of this step [N m].
+        commands: The commands of the last solve (:meth:`CommandSchedule.at`); ee_command: its end-effector
+            velocity command (``None`` without an arm); ee_reference: the arm reference position [m].
+        contact: The scheduled contacts of this step (n_feet,).
+        observers: The :class:`~wbmpc.sim.observers.LoopObserver` s.
+    """
+
+    def __init__(
+        self,
+        mpc: WholeBodyMPC,
+        config: ClosedLoopConfig,
+        q0: np.ndarray | None = None,
+        observers: Sequence[LoopObserver] = (),
+    ):
+        self.mpc, self.config, self.robot = mpc, config, mpc.robot
+        robot = self.robot
+        self.n_steps, self.per_mpc, self.per_low = config.steps()
+        dt_low = self.per_low * config.plant.dt
+        self.schedule: CommandSchedule = config.commands
+        self.gait = self.schedule.gait if self.schedule.gait is not None else mpc.config.gait
+        self.plant = make_plant(robot, config)
+        self.q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
+        self.state = self.plant.reset(self.q0, np.zeros(robot.nv))
+        self.low, self.drive = _joint_level(robot, config)
+        sensing = config.sensing
+        self.sensor = StateSensor(robot.model, dt_low, sensing.noise, sensing.velocity_cutoff_hz)
+        self.estimator = None
+        if sensing.state == "estimated":
+            self.estimator = EstimatedState(
+                robot,
+                PlannedContacts(self.contact_plan),
+                dt_low,
+                config.plant.hardware,
+                sensing.velocity_cutoff_hz,
+            )
+        self.arm = ArmCommander(robot, self.schedule, self.q0, config.arm_kp, config.arm_preview)
+        self.ee_id = self.arm.ee_id
+        self.scene_names = self.plant.body_names
+        self.observers: list[LoopObserver] = list(observers)
+        self.step, self.t = 0, 0.0
+        self.tau = np.zeros(robot.nj)
+        self.ee_command, self.ee_reference = None, self.arm.ee_reference
+        self.commands = self.schedule.at(0.0, self.gait)
+        self.contact = np.ones(robot.n_feet, dtype=bool)
+
+    def contact_plan(self, times) -> np.ndarray:
+        """Contacts (n_feet, n) at ``times`` [s]: the MPC's plan (the gait with any swing aborted after a
+        push), shared by the rigid plant, the estimator and the logs."""
+        return self.mpc.contact_plan(times, self.gait)
+
+    def summary(self, columns: Mapping, fell: bool) -> dict:
+        """The run summary from the log's columns (in memory or the streamed file) and the components."""
+        config, drive = self.config, self.drive
+        clipped = self.low.violations if drive is None else drive.violations
+        summary = summarize(self.mpc, columns, config, fell, clipped, self.plant, gait=self.gait)
+        summary["joint_pd"] = config.low_level.joint_pd
         if drive is not None:
-            names = robot.joint_names
+            names = self.robot.joint_names
             summary["torque_clipped_steps_by_joint"] = {
                 names[i]: int(n) for i, n in enumerate(drive.clipped_steps) if n
             }
-        summary["diagnostics"] = reporter.summary()
-        summary["scene_bodies"] = list(scene_names)
-        summary["state"] = config.state
-        summary["hardware"] = None if config.hardware is None else config.hardware.describe()
-        if estimator is not None and len(columns["t"]):
+        for observer in self.observers:
+            summary |= observer.summary()
+        summary["scene_bodies"] = list(self.scene_names)
+        summary["state"] = config.sensing.state
+        hardware = config.plant.hardware
+        summary["hardware"] = None if hardware is None else hardware.describe()
+        if self.estimator is not None and len(columns["t"]):
             summary["estimate_error"] = estimate_errors(*(columns[k] for k in ("q", "v", "q_meas", "v_meas")))
         return summary
 
-    log.summarize = lambda columns: run_summary(columns, False)  # an interrupted run's partial log
+    def run(self, interrupt: _DeferredInterrupt | None = None) -> bool:
+        """Run to the config's duration or a fall; returns whether the robot fell."""
+        config, mpc, plant = self.config, self.mpc, self.plant
+        dt, per_mpc, per_low = config.plant.dt, self.per_mpc, self.per_low
+        mpc.prepare()  # the solvers are built before the clock starts, not inside the first solves
+        mpc.reset()
+        kicks = {round(d.time / dt): d for d in config.disturbances if isinstance(d, Kick)}
+        pushes = [d for d in config.disturbances if isinstance(d, Push)]
+        self.q_meas, self.v_meas = self.sensor.measure(self.state.q, self.state.v)
+        if self.estimator is not None:
+            self.q_meas, self.v_meas = self.estimator.reset(self.state.q, self.state.v)
+        self._pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
+        ramp = self.schedule.ramp
+        self._ramp = None if ramp is None else CommandRamp(*ramp)
+        self._expected_delay = DelayEstimate(
+            None if config.delay in ("off", "measured") else float(config.delay)
+        )
+        self._busy_until = 0  # plant step before which no new solve can start (the solver is working)
+        self._next_solve = 0  # plant step of the next MPC tick
+        contacts_from = 0  # plant step at which period_contacts begins
+        for step in range(self.n_steps):
+            self.step, self.t = step, step * dt
+            for observer in self.observers:
+                observer.on_step(self, step)
+            if interrupt is not None:
+                interrupt.check()  # Ctrl-C
+            if self._pending is not None and step >= self._pending[0]:
+                self.low.update(self._pending[1])
+                self._pending = None
+            solve_now = step >= self._busy_until and step >= self._next_solve
+            if config.mpc_schedule == "ticks":
+                solve_now = solve_now and step % per_mpc == 0
+            else:  # free-running: the next solve starts at the first low-level tick after the plan arrived
+                solve_now = solve_now and step % per_low == 0
+            if solve_now:
+                self._solve(step)
+            if solve_now or step - contacts_from >= per_mpc or step == 0:
+                # The contact plan of the coming MPC period in one vectorised call, sampled after this tick's
+                # solve, so the rigid plant, the logs and the MPC share one plan.
+                period_contacts = self.contact_plan(dt * np.arange(step, step + per_mpc))
+                contacts_from = step
+            self.contact = period_contacts[:, step - contacts_from]
+            low_tick = step % per_low == 0
+            if low_tick:
+                self._joint_commands()
+            if self.drive is not None:
+                self.tau = self.drive.torque(self.state.q[7:], self.state.v[6:])
+            if low_tick:
+                for observer in self.observers:
+                    observer.on_tick(self)
+                # On every logged tick, not only on solves: a slow solve would otherwise leave a fall (a tilt
+                # the summary's max_tilt_rad shows) unseen until the base happened to recover.
+                if fallen(self.state, max_tilt=config.max_tilt):
+                    return True
+            try:
+                if step in kicks:
+                    self.state = plant.apply_base_velocity_kick(np.asarray(kicks[step].delta_v, dtype=float))
+                wrench, ee_force = _push_forces(pushes, self.t)
+                self.state = plant.step(self.tau, self.contact, external_wrench=wrench, ee_force=ee_force)
+            except FloatingPointError:
+                return True
+        return False
 
-    bar = _progress(n_steps // per_mpc, progress)
-    for step in range(n_steps):
-        log.tick(step)  # a streamed log writes a chunk to disk and empties its lists
-        if interrupt is not None:
-            interrupt.check()  # Ctrl-C
-        t = step * config.plant_dt
-        q, v = state.q, state.v
-        if pending is not None and step >= pending[0]:
-            low.update(pending[1])
-            pending = None
-        solve_now = step >= busy_until and step >= next_solve
-        if config.mpc_schedule == "ticks":
-            solve_now = solve_now and step % per_mpc == 0
-        else:  # free-running: the next solve starts at the first low-level tick after the last plan arrived
-            solve_now = solve_now and step % per_low == 0
-        if solve_now:
-            next_solve = step + per_mpc
-            if sensor.is_ground_truth and estimator is None:
-                q_meas, v_meas = q.copy(), v.copy()
-            cmd = _commands(config, t, schedule)
-            if ramp is not None:
-                cmd["base_velocity"], cmd["base_yaw_rate"] = ramp(
-                    t, cmd["base_velocity"], cmd["base_yaw_rate"]
-                )
-            t_plan = t
-            if config.delay_compensation and config.delay != "off" and low.plan is not None:
-                t_plan = t + math.ceil(expected_delay.expected() / config.plant_dt - 1e-9) * config.plant_dt
-            commands = Commands(
-                base_linear_velocity=cmd["base_velocity"],
-                base_angular_velocity=np.array([0, 0, cmd["base_yaw_rate"]]),
-                ee_force=cmd["ee_force"],
+    def _solve(self, step: int) -> None:
+        """An MPC tick: the commands, the state to plan from, the solve, and when its plan applies."""
+        config, mpc, low, t = self.config, self.mpc, self.low, self.t
+        dt = config.plant.dt
+        self._next_solve = step + self.per_mpc
+        if self.sensor.is_ground_truth and self.estimator is None:
+            self.q_meas, self.v_meas = self.state.q.copy(), self.state.v.copy()
+        cmd = self.commands = self.schedule.at(t, self.gait)
+        if self._ramp is not None:
+            cmd["base_velocity"], cmd["base_yaw_rate"] = self._ramp(
+                t, cmd["base_velocity"], cmd["base_yaw_rate"]
             )
-            if ee_id is not None:
-                pin.framesForwardKinematics(model, data, q_meas)
-                ee_pos = data.oMf[ee_id].translation.copy()
-                if arm_reference is not None or hold is not None:
-                    local_velocity = None
-                    reference = arm_reference
-                    if hold is not None:  # the hold point moves at the commanded velocity (heading frame)
-                        hold[0] = tuple(np.asarray(hold[0]) + cmd["ee_velocity"] * (t - hold[1]))
-                        hold[1] = t
-                        reference, local_velocity = ArmReference.still(hold[0]), cmd["ee_velocity"]
-                    R_heading, _ = heading_frame(q_meas)
-                    stage_times = node_times(mpc.time_steps(), t_plan)[:-1] if config.arm_preview else None
-                    ee_cmd, ee_ref = velocity_command(
-                        reference,
-                        q_meas,
-                        ee_pos,
-                        t,
-                        R_heading @ cmd["base_velocity"],
-                        kp=config.arm_kp,
-                        node_times=stage_times,
-                        yaw_rate=cmd["base_yaw_rate"],
-                        local_velocity=local_velocity,
-                    )
-                else:
-                    ee_cmd = cmd["ee_velocity"]
-                commands.ee_velocity = ee_cmd
-                log.ee_command.append(ee_cmd if ee_cmd.ndim == 1 else ee_cmd[:, 0])
-            q_plan, v_plan = q_meas, v_meas
-            if t_plan > t:  # plan from where the robot will be when the plan arrives
-                q_plan, v_plan = predict_state(model, low.plan, q_meas, v_meas, t, t_plan)
-            plan = mpc.solve(q_plan, v_plan, t_plan, commands)
-            if step > 0:  # the cold first solve, before the robot moves, says nothing of the next ones
-                expected_delay.record(plan.timings.get("total", plan.solve_time))
-            if plan.fallback:
-                kept = "static hold applied" if plan.hold else "previous plan kept"
-                reporter.report(t, plan.status, f"{plan.reason} ({kept})")
-            if plan.findings:
-                reporter.report_findings(t, plan.findings)
-            # The plan is ready when the whole call returns (parameters, prechecks, solve, unpacking).
-            delay = _delay_steps(config, plan.timings.get("total", plan.solve_time))
-            if delay == 0 or low.plan is None:  # no delay, or nothing to hold yet (the robot starts at rest)
-                low.update(plan)
-                apply_step = step
-            else:
-                # A compensated plan starts at t_plan: one that is ready sooner waits for it (the plan in use
-                # covers the time until then), one that is late is used part-way.
-                apply_step = max(step + delay, round(t_plan / config.plant_dt))
-                pending = (apply_step, plan)
-            busy_until = apply_step
-            _log_solve(log, plan, keep_plans, apply_step * config.plant_dt)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(iters=plan.iterations, ms=f"{1e3 * plan.solve_time:.0f}")
-        if solve_now or step - contacts_from >= per_mpc or step == 0:
-            # The contact plan of the coming MPC period in one vectorised call, sampled after this tick's
-            # solve: the MPC's plan (the gait schedule with any swing aborted after a push), so the rigid
-            # plant, the logs and the MPC share one plan.
-            period_contacts = contact_plan(config.plant_dt * np.arange(step, step + per_mpc))
-            contacts_from = step
-        contact = period_contacts[:, step - contacts_from]
-        if step % per_low == 0:
-            if estimator is None:
-                q_meas, v_meas = sensor.measure(q, v)  # ground truth: plain copies
-            else:
-                q_meas, v_meas = estimator.measure(q, v, t)
-            if drive is None:
-                tau = low.torque(t, q_meas, v_meas)
-            else:  # the drivers close the loop; the controller sends setpoints
-                ref = low.last_reference = low.reference(t)
-                drive.command(ref.tau_ff, ref.q_des, ref.v_des)
-        if drive is not None:
-            tau = drive.torque(q[7:], v[6:])
-        if step % per_low == 0:
-            log.t.append(t)
-            log.q.append(q.copy())
-            log.v.append(v.copy())
-            log.q_meas.append(q_meas.copy())
-            log.v_meas.append(v_meas.copy())
-            log.tau.append(tau.copy())
-            log.tau_ff.append(low.last_reference.tau_ff)
-            log.contact.append(contact)
-            log.contact_sim.append(plant.foot_contacts(contact))
-            log.foot_forces.append(plant.contact_forces())
-            log.foot_height.append(plant.foot_positions[:, 2] - robot.foot_radius)
-            log.base_velocity_cmd.append(cmd["base_velocity"])
-            log.base_yaw_rate_cmd.append(cmd["base_yaw_rate"])
-            log.ee_force_cmd.append(cmd["ee_force"])
-            if ee_id is not None:  # only the end-effector frame is needed here
-                pin.forwardKinematics(model, data, q)
-                log.ee_position.append(pin.updateFramePlacement(model, data, ee_id).translation.copy())
-                log.ee_force_sim.append(plant.ee_contact_force())
-            else:
-                log.ee_position.append(np.full(3, np.nan))
-                log.ee_force_sim.append(np.zeros(3))
-            log.ee_reference.append(ee_ref.copy())
-            if scene_names:
-                log.scene_positions.append(np.array([plant.body_pose(name)[0] for name in scene_names]))
-            # On every logged tick, not only on solves: a slow solve would otherwise leave a fall (a tilt the
-            # summary's max_tilt_rad shows) unseen until the base happened to recover.
-            if fallen(state, max_tilt=config.max_tilt):
-                fell = True
-                break
-        try:
-            if step in kicks:
-                state = plant.apply_base_velocity_kick(np.asarray(kicks[step].delta_v, dtype=float))
-            wrench, ee_force = _push_forces(pushes, t)
-            state = plant.step(tau, contact, external_wrench=wrench, ee_force=ee_force)
-        except FloatingPointError:
-            fell = True
-            break
-    if bar is not None:
-        bar.close()
-    summary = log.finish(lambda columns: run_summary(columns, fell))
-    plant.close()
-    return ClosedLoopResult(log=log, summary=summary, fell=fell)
+        t_plan = t
+        if config.delay_compensation and config.delay != "off" and low.plan is not None:
+            t_plan = t + math.ceil(self._expected_delay.expected() / dt - 1e-9) * dt
+        commands = Commands(
+            base_linear_velocity=cmd["base_velocity"],
+            base_angular_velocity=np.array([0, 0, cmd["base_yaw_rate"]]),
+            ee_force=cmd["ee_force"],
+            gait=self.schedule.gait,
+        )
+        self.ee_command = self.arm.command(self.q_meas, t, cmd, mpc.time_steps(), t_plan)
+        self.ee_reference = self.arm.ee_reference
+        if self.ee_command is not None:
+            commands.ee_velocity = self.ee_command
+        q_plan, v_plan = self.q_meas, self.v_meas
+        if t_plan > t:  # plan from where the robot will be when the plan arrives
+            q_plan, v_plan = predict_state(self.robot.model, low.plan, self.q_meas, self.v_meas, t, t_plan)
+        plan = mpc.solve(q_plan, v_plan, t_plan, commands)
+        if step > 0:  # the cold first solve, before the robot moves, says nothing of the next ones
+            self._expected_delay.record(plan.timings.get("total", plan.solve_time))
+        # The plan is ready when the whole call returns (parameters, prechecks, solve, unpacking).
+        delay = _delay_steps(config, plan.timings.get("total", plan.solve_time))
+        if delay == 0 or low.plan is None:  # no delay, or nothing to hold yet (the robot starts at rest)
+            low.update(plan)
+            apply_step = step
+        else:
+            # A compensated plan starts at t_plan: one that is ready sooner waits for it (the plan in use
+            # covers the time until then), one that is late is used part-way.
+            apply_step = max(step + delay, round(t_plan / dt))
+            self._pending = (apply_step, plan)
+        self._busy_until = apply_step
+        for observer in self.observers:
+            observer.on_solve(self, plan, apply_step * dt)
+
+    def _joint_commands(self) -> None:
+        """A low-level tick: what the controller sees, and the torques (or the drives' setpoints)."""
+        q, v, t = self.state.q, self.state.v, self.t
+        if self.estimator is None:
+            self.q_meas, self.v_meas = self.sensor.measure(q, v)  # ground truth: plain copies
+        else:
+            self.q_meas, self.v_meas = self.estimator.measure(q, v, t)
+        if self.drive is None:
+            self.tau = self.low.torque(t, self.q_meas, self.v_meas)
+        else:  # the drivers close the loop; the controller sends setpoints
+            ref = self.low.last_reference = self.low.reference(t)
+            self.drive.command(ref.tau_ff, ref.q_des, ref.v_des)
 
 
-def _commands(config: ClosedLoopConfig, t: float, gait=None) -> dict:
-    """Commands at time ``t``: the config's constants, the gait schedule's segment velocity (a stand segment
-    stands still), then the config's ``command_schedule``."""
-    cmd = {
-        "base_velocity": config.base_velocity,
-        "base_yaw_rate": config.base_yaw_rate,
-        "ee_velocity": config.ee_velocity,
-        "ee_force": config.ee_force,
-    }
-    segment = None if gait is None else gait.velocity_at(t)
-    if segment is not None:
-        cmd |= {"base_velocity": (segment[0], segment[1], 0.0), "base_yaw_rate": segment[2]}
-    if config.command_schedule is not None:
-        override = config.command_schedule(t) or {}
-        unknown = set(override) - set(cmd)
-        if unknown:
-            raise ValueError(
-                f"command_schedule returned unknown keys {sorted(unknown)}; known: {sorted(cmd)}"
-            )
-        cmd |= override
-    out = {k: np.asarray(v, dtype=float) for k, v in cmd.items()}
-    out["base_yaw_rate"] = float(out["base_yaw_rate"])
-    return out
+def make_plant(robot, config: ClosedLoopConfig) -> Plant:
+    """The plant of ``config.plant`` at its step, with its scene; behind the hardware profile's motors
+    (:class:`~wbmpc.sim.actuators.ActuatedPlant`) when the config has one."""
+    plant_config = config.plant
+    hardware = plant_config.hardware
+    if plant_config.kind == "rigid":
+        return ContactPlant(robot.model, robot.foot_frames, dt=plant_config.dt, foot_radius=robot.foot_radius)
+    from wbmpc.sim.pybullet_plant import PyBulletPlant
+
+    offset = (
+        None if hardware is None or hardware.base_com_offset is None else np.asarray(hardware.base_com_offset)
+    )
+    plant = PyBulletPlant(
+        robot,
+        dt=plant_config.dt,
+        ground_friction=plant_config.ground_friction,
+        scene=plant_config.scene,
+        base_com_offset=offset,
+        clip_torques=hardware is None,
+    )
+    if hardware is None:
+        return plant
+    motors = hardware.motor_model(robot)
+    if config.low_level.joint_pd == "drive":
+        motors = replace(motors, latency=0.0)  # the drive delays its setpoints instead (MotorDrive)
+    return ActuatedPlant(plant, Actuators(motors, robot.joint_torque_limits, plant_config.dt))
+
+
+def _joint_level(robot, config: ClosedLoopConfig) -> tuple[LowLevelController, MotorDrive | None]:
+    """The low level and, with ``joint_pd="drive"``, the motor drives that run its PD law."""
+    low_config = config.low_level
+    kp = np.full(robot.nj, float(low_config.kp))
+    kd = np.full(robot.nj, float(low_config.kd))
+    if low_config.arm_gains is not None and robot.has_arm:
+        arm = [robot.joint_names.index(name) for name in robot.arm_joint_names]
+        kp[arm], kd[arm] = low_config.arm_gains
+    # A calibrated MPC model brings the joints' identified friction: the low level feeds it forward.
+    calibration = getattr(robot, "calibration", None)
+    friction = (
+        calibration.joint_friction(robot)
+        if calibration is not None and low_config.friction_feedforward
+        else None
+    )
+    low = LowLevelController(kp, kd, torque_limits=robot.joint_torque_limits, friction=friction)
+    drive = None
+    if low_config.joint_pd == "drive":
+        hardware = config.plant.hardware
+        latency = 0.0 if hardware is None else hardware.torque_latency
+        drive = MotorDrive(kp, kd, robot.joint_torque_limits, round(latency / config.plant.dt))
+    return low, drive
 
 
 def _delay_steps(config: ClosedLoopConfig, solve_time: float) -> int:
@@ -412,7 +448,7 @@ def _delay_steps(config: ClosedLoopConfig, solve_time: float) -> int:
     if config.delay == "off":
         return 0
     seconds = solve_time if config.delay == "measured" else float(config.delay)
-    return int(math.ceil(seconds / config.plant_dt - 1e-9))
+    return int(math.ceil(seconds / config.plant.dt - 1e-9))
 
 
 def _push_forces(pushes: list[Push], t: float) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -425,57 +461,3 @@ def _push_forces(pushes: list[Push], t: float) -> tuple[np.ndarray | None, np.nd
                 f = np.asarray(push.force, dtype=float)
                 ee = f if ee is None else ee + f
     return wrench, ee
-
-
-def _joint_gains(robot, config: ClosedLoopConfig) -> tuple[np.ndarray, np.ndarray]:
-    kp = np.full(robot.nj, float(config.kp))
-    kd = np.full(robot.nj, float(config.kd))
-    if config.arm_gains is not None and robot.has_arm:
-        arm = [robot.joint_names.index(name) for name in robot.arm_joint_names]
-        kp[arm], kd[arm] = config.arm_gains
-    return kp, kd
-
-
-def make_plant(robot, config: ClosedLoopConfig):
-    """The plant named by ``config.plant``, stepping at ``config.plant_dt`` (with the config's scene)."""
-    if config.plant == "rigid":
-        return ContactPlant(robot.model, robot.foot_frames, dt=config.plant_dt, foot_radius=robot.foot_radius)
-    if config.plant == "pybullet":
-        from wbmpc.sim.pybullet_plant import PyBulletPlant
-
-        options = {} if config.hardware is None else config.hardware.plant_options(robot)
-        if config.joint_pd == "drive":
-            options["torque_latency"] = 0.0  # the drive delays its setpoints instead (MotorDrive)
-        return PyBulletPlant(
-            robot, dt=config.plant_dt, ground_friction=config.ground_friction, scene=config.scene, **options
-        )
-    raise ValueError(f"unknown plant {config.plant!r}; available: 'rigid', 'pybullet'")
-
-
-def _log_solve(log: ClosedLoopLog, plan: MPCSolution, keep_plans: bool, apply_t: float) -> None:
-    log.solve_t.append(plan.t)
-    log.apply_t.append(apply_t)
-    log.plan_q.append(plan.q[:2].copy())
-    log.plan_v.append(plan.v[:2].copy())
-    log.plan_tau.append(plan.tau[0].copy())
-    log.plan_forces.append(plan.forces[0].copy())
-    log.plan_contact.append(np.asarray(plan.contact[:, 0], bool))
-    log.hold.append(bool(plan.hold))
-    log.solve_time.append(plan.solve_time)
-    log.iterations.append(plan.iterations)
-    log.success.append(plan.success)
-    log.fallback.append(plan.fallback)
-    log.violation.append(plan.constraint_violation)
-    log.status.append(plan.status)
-    log.reason.append(plan.reason)
-    log.timings.append(plan.timings)
-    if keep_plans:
-        log.plans.append(plan)
-
-
-def _progress(total: int, enabled: bool):
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc="MPC", unit="solve")

@@ -9,15 +9,14 @@ value; the MPC keeps its nominal model.
 
 Two ways to use it:
 
-* ``ClosedLoopConfig(plant="pybullet", hardware=profile, state="estimated")`` applies the robot side of a
-  profile: the plant's friction, armature, centre-of-mass offset and latency, and the IMU and encoder
-  errors the estimator reads (``state="estimated"``); every controller setting stays the config's own.
-* :func:`wbmpc.sim.presets.hardware_config` is the preset: the same plus the controller settings of the
-  profile (estimated state, measured computation delay, the hardware low-level gains, the 50 Hz
-  joint-velocity filter), the joint PD law in the motor drivers (:mod:`wbmpc.sim.motor_drive`, as on
-  Unitree's robots), the computation-delay compensation (:mod:`wbmpc.control.delay`) and
-  acceleration-limited velocity
-  commands (0.3 m/s^2, 0.5 rad/s^2, :mod:`wbmpc.control.command_ramp`),
+* ``ClosedLoopConfig(plant=PlantConfig("pybullet", hardware=profile), sensing=SensingConfig("estimated"))``
+  applies the robot side of a profile: the motors' friction, armature and latency
+  (:class:`wbmpc.sim.actuators.MotorModel`, :meth:`HardwareProfile.motor_model`), the base's
+  centre-of-mass offset, and the IMU and encoder errors the estimator reads; every controller setting
+  stays the config's own.
+* :func:`wbmpc.sim.presets.hardware_config` is the preset: the same plus the controller a Unitree robot runs
+  (estimated state, measured computation delay, compensated, the hardware low-level gains, the 50 Hz
+  joint-velocity filter, the joint PD law in the motor drivers, ramped velocity commands),
   e.g. ``run_closed_loop(mpc, hardware_config(duration=10.0))``.
 
 What the mismatches do to the MPC (``data/hardware/fall_ablation.json``; fixed 12.5 ms delay):
@@ -28,8 +27,8 @@ What the mismatches do to the MPC (``data/hardware/fall_ablation.json``; fixed 1
   enough that the same latency does no visible harm. Motor friction is harmless.
 * The base CoM offset makes the nominal MPC lean back (pitch -0.18 rad trotting, rear calves at their torque
   limit, the base drifting backwards instead of trotting forward: ``data/hardware/emulated_b1_stand_trot``).
-  The offset identified from a log (:func:`wbmpc.studies.hardware_logs.identify_com_offset`) put into the
-  MPC's model and force targets (:func:`wbmpc.studies.hardware_logs.shift_base_com`) removes the lean: the
+  The offset identified from a log (:func:`wbmpc.analysis.identify_com_offset`) put into the
+  MPC's model and force targets (:func:`wbmpc.model.base_com.shift_base_com`) removes the lean: the
   paper's fix.
 * ``delay="measured"`` on a machine where solves take ~10 MPC periods (this 2-core one) adds a plan ~0.1 s
   old on top; the fixed delay separates the robot's mismatches from the machine's speed.
@@ -58,6 +57,7 @@ from wbmpc.estimation import (
     synthesize_imu,
 )
 from wbmpc.model.quaternion import base_z_axis
+from wbmpc.sim.actuators import MotorModel
 
 __all__ = [
     "EstimatedState",
@@ -102,12 +102,6 @@ class HardwareProfile:
         estimator: Tuning of the state estimator (``None``: the defaults of
             :class:`wbmpc.estimation.EstimatorNoise`).
         seed: Seed of the sensor noise.
-        state: Controller state source of the preset (:func:`hardware_config`): ``"estimated"``.
-        delay: Computation delay of the preset: ``"measured"`` (each solve's wall time), or seconds.
-        leg_gains: Low-level ``(kp, kd)`` of the leg joints [N m/rad], [N m s/rad] in the preset (pure
-            feed-forward oscillated on hardware; Kd ~20 damps it).
-        arm_gains: Low-level ``(kp, kd)`` of the arm joints in the preset (a small stiffness).
-        velocity_cutoff_hz: Joint-velocity low-pass of the estimator in the preset [Hz].
     """
 
     leg_coulomb: tuple[float, float, float] = (1.0, 1.0, 1.0)
@@ -124,11 +118,6 @@ class HardwareProfile:
     imu: ImuNoise | None = field(default_factory=lambda: _HARDWARE_IMU)
     estimator: EstimatorNoise | None = None
     seed: int = 0
-    state: str = "estimated"
-    delay: str | float = "measured"
-    leg_gains: tuple[float, float] = (0.0, 20.0)
-    arm_gains: tuple[float, float] = (5.0, 1.0)
-    velocity_cutoff_hz: float | None = 50.0
 
     def __post_init__(self):
         for name in ("leg_coulomb", "leg_viscous", "leg_armature"):
@@ -153,14 +142,6 @@ class HardwareProfile:
                 raise ValueError(f"HardwareProfile.base_com_offset must be 3 finite values, got {offset}")
         if self.imu is not None and not isinstance(self.imu, ImuNoise):
             raise ValueError(f"HardwareProfile.imu must be an ImuNoise or None, got {self.imu!r}")
-        if self.state not in ("ground_truth", "estimated"):
-            raise ValueError(
-                f"HardwareProfile.state must be 'ground_truth' or 'estimated', got {self.state!r}"
-            )
-        for name in ("leg_gains", "arm_gains"):
-            gains = np.asarray(getattr(self, name), dtype=float)
-            if gains.shape != (2,) or not np.all(np.isfinite(gains)) or np.any(gains < 0):
-                raise ValueError(f"HardwareProfile.{name} must be (kp, kd) >= 0, got {getattr(self, name)!r}")
 
     @classmethod
     def ideal(cls, **changes) -> HardwareProfile:
@@ -180,8 +161,12 @@ class HardwareProfile:
         }
         return cls(**(off | changes))
 
-    def plant_options(self, robot) -> dict:
-        """Keyword arguments of :class:`~wbmpc.sim.pybullet_plant.PyBulletPlant` for this profile."""
+    def motor_model(self, robot) -> MotorModel:
+        """The motors of this profile for ``robot``'s joints (legs of 3 joints: hip, thigh, calf).
+
+        Raises:
+            ValueError: If the robot's leg joints do not come in threes.
+        """
         arm = set(robot.arm_joint_names) if robot.has_arm else set()
         legs = [name for name in robot.joint_names if name not in arm]
         if len(legs) % 3:
@@ -191,14 +176,13 @@ class HardwareProfile:
             leg_values = iter(np.tile(leg_values, len(legs) // 3))
             return np.array([arm_value if name in arm else next(leg_values) for name in robot.joint_names])
 
-        return {
-            "coulomb_friction": per_joint(self.leg_coulomb, self.arm_coulomb),
-            "viscous_friction": per_joint(self.leg_viscous, self.arm_viscous),
-            "armature": per_joint(self.leg_armature, self.arm_armature),
-            "friction_velocity": self.friction_velocity,
-            "base_com_offset": None if self.base_com_offset is None else np.asarray(self.base_com_offset),
-            "torque_latency": self.torque_latency,
-        }
+        return MotorModel(
+            coulomb=per_joint(self.leg_coulomb, self.arm_coulomb),
+            viscous=per_joint(self.leg_viscous, self.arm_viscous),
+            friction_velocity=self.friction_velocity,
+            armature=per_joint(self.leg_armature, self.arm_armature),
+            latency=self.torque_latency,
+        )
 
     def describe(self) -> dict:
         """The profile as plain JSON-ready values (for run summaries)."""

@@ -143,6 +143,12 @@ class Plant:
     def close(self) -> None:
         """Release what the plant holds (a physics client); nothing here."""
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
 
 class ContactPlant(Plant):
     """Rigid-contact forward dynamics of a floating-base robot, integrated with semi-implicit Euler.

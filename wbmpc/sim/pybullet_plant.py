@@ -6,16 +6,9 @@ mode and converts the state to and from Pinocchio's conventions. Contacts are no
 from PyBullet's collision detection and its unilateral, friction-limited contact solver, so the closed loop
 can swap :class:`~wbmpc.sim.plant.ContactPlant` for this plant to test the MPC against a physics engine.
 
-What the plant does to the URDF (a temporary, preprocessed copy is loaded; the original is untouched):
+The plant loads a temporary copy of the URDF rewritten by :func:`wbmpc.model.urdf.preprocess_urdf` (no
+visuals, absolute mesh paths, locked joints made fixed: the same rigid bodies as Pinocchio's reduced model).
 
-* ``<visual>`` elements are dropped: DIRECT mode never renders, and parsing the Collada visual meshes took
-  ~5 s per load. Collision meshes (the Z1 gripper STLs) keep their geometry; ``package://`` URIs are
-  rewritten to absolute paths (``example-robot-data`` is located through its installed distribution, other
-  packages by searching the folders above the URDF).
-* Locked joints (``robot.locked_joints``, e.g. ``joint5, joint6, jointGripper``) are rewritten as *fixed*
-  joints whose origin includes the rotation by the locked angle. This is exactly what Pinocchio's
-  ``buildReducedModel`` does, so the two models have the same rigid bodies; a stiff position motor or a
-  fixed constraint would instead add compliance, drift and solver load.
 * The root link frame is the base: PyBullet reports the base *inertial* frame (its centre of mass, principal
   axes), the plant converts to the URDF root link frame with the inertial frame returned by
   ``getDynamicsInfo`` (position and orientation both matter: PyBullet diagonalises the inertia tensor).
@@ -35,22 +28,11 @@ Physics choices:
   robot's links are given friction 1 and restitution 1 and the ground carries ``ground_friction`` and
   ``restitution``; a box's ``friction`` is then its friction against the robot.
 
-Emulated-hardware options (all off by default; :class:`wbmpc.sim.hardware.HardwareProfile` sets them), model
-errors the MPC does not know about:
-
-* Motor friction ``tau_f = -(c tanh(qdot / v_s) + b qdot)`` per joint (``coulomb_friction`` c [N m],
-  ``viscous_friction`` b [N m s/rad], smoothed over ``friction_velocity`` v_s [rad/s]), added to the
-  motor torque (after its clipping), on top of the URDF joint damping and friction above.
-* Rotor inertia (``armature`` I_a [kg m^2], reflected through the gearbox): PyBullet has no armature
-  (``changeDynamics`` has no such option, its URDF parser ignores it), so the plant adds the reflected
-  inertia torque ``-I_a qddot`` with ``qddot`` the mean of the last two finite differences of the joint
-  rates. One-step-old estimates are unstable once I_a exceeds a joint's effective link inertia (the B1
-  calf ~0.04 kg m^2, the Z1 wrist ~0.009); the two-step mean is stable up to twice it, and the error
-  decays within a few steps.
-* Base centre-of-mass offset (``base_com_offset`` [m], base frame): the base link's inertial origin in the
-  loaded URDF moves by it; the state conversion follows (it reads the inertial frame back).
-* Torque-command latency (``torque_latency`` [s]): a delay line of ``round(latency / dt)`` steps between
-  :meth:`PyBulletPlant.step`'s torques and the motors (the first command fills it after :meth:`reset`).
+Motor effects (friction, rotor inertia, torque latency) are not the plant's: :class:`wbmpc.sim.actuators.
+ActuatedPlant` puts them in front of any plant. The one model error the plant itself carries is the base
+centre-of-mass offset (``base_com_offset`` [m], base frame, :class:`wbmpc.sim.hardware.HardwareProfile`): the
+base link's inertial origin in the loaded URDF moves by it, and the state conversion follows (it reads the
+inertial frame back).
 
 Example:
     >>> robot = load_b1_z1()
@@ -64,7 +46,6 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +56,6 @@ from wbmpc import checks
 from wbmpc.model.quaternion import (
     cross3,
     quaternion_conjugate,
-    quaternion_from_matrix,
     quaternion_multiply,
     rotation_matrix,
 )
@@ -83,128 +63,15 @@ from wbmpc.model.robot import Robot, RobotModelError
 from wbmpc.model.urdf import offset_base_com, preprocess_urdf
 from wbmpc.sim.plant import Plant, PlantState
 from wbmpc.sim.plant import fallen as _fallen
+from wbmpc.sim.pybullet_contacts import VIOLATION_KINDS, ContactReadings
+from wbmpc.sim.pybullet_scene import SceneBodies, scene_items
+from wbmpc.sim.scene import Box, Payload, SceneObject, Wall
 
 __all__ = ["Box", "Payload", "PyBulletPlant", "Wall"]
 
-_VIOLATION_KINDS = ("pulling", "slipping", "penetrating")
-#: A foot counts as slipping when its friction force reaches this share of mu * normal force (PyBullet's
-#: default friction cone clamps the friction force at mu f_n when the contact slides).
-_SLIP_RATIO = 0.99
-#: Contact distance below which a foot counts as penetrating the ground [m] (standing, PyBullet's feet sink
-#: ~1e-5 m into the ground).
-_PENETRATION_TOL = 2e-3
-
-
-# ---------------------------------------------------------------------------------------------- scene
-@dataclass(frozen=True)
-class Box:
-    """An axis-aligned (up to yaw) box.
-
-    Attributes:
-        size: Full edge lengths (x, y, z) [m].
-        position: Centre in the world [m].
-        mass: Mass [kg]; 0 makes the box static.
-        friction: Lateral friction coefficient (against the robot; against the ground it is multiplied by
-            the ground friction).
-        yaw: Rotation about the world z axis [rad].
-    """
-
-    size: tuple[float, float, float]
-    position: tuple[float, float, float]
-    mass: float = 0.0
-    friction: float = 0.8
-    yaw: float = 0.0
-
-    def __post_init__(self):
-        size = checks.vector("Box.size", self.size, 3, unit="m")
-        if np.any(size <= 0):
-            raise ValueError(f"Box.size must be 3 edge lengths > 0 [m], got {self.size!r}")
-        checks.vector("Box.position", self.position, 3, unit="m")
-        checks.number("Box.mass", self.mass, low=0.0, unit="kg (0: static)")
-        checks.number("Box.friction", self.friction, low=0.0)
-        checks.number("Box.yaw", self.yaw, unit="rad")
-
-
-@dataclass(frozen=True)
-class Wall:
-    """A static slab whose contact face is centred at ``position`` and faces ``normal``.
-
-    Attributes:
-        position: Centre of the contact face in the world [m].
-        normal: Outward normal of the contact face (towards the robot); normalised internally.
-        size: Face extent (width, height) [m]: height along the world z axis projected on the face (for a
-            horizontal face, e.g. a table top, along the world x axis), width across it.
-        thickness: Slab thickness behind the face [m].
-        friction: Lateral friction coefficient (against the robot).
-    """
-
-    position: tuple[float, float, float]
-    normal: tuple[float, float, float]
-    size: tuple[float, float] = (2.0, 2.0)
-    thickness: float = 0.1
-    friction: float = 0.5
-
-    def __post_init__(self):
-        checks.vector("Wall.position", self.position, 3, unit="m")
-        normal = checks.vector("Wall.normal", self.normal, 3)
-        if np.linalg.norm(normal) < 1e-9:
-            raise ValueError(f"Wall.normal must be a non-zero direction (to the robot), got {self.normal!r}")
-        size = checks.vector("Wall.size", self.size, 2, unit="m")
-        if np.any(size <= 0):
-            raise ValueError(f"Wall.size must be (width, height) > 0 [m], got {self.size!r}")
-        checks.number("Wall.thickness", self.thickness, low=0.0, low_open=True, unit="m")
-        checks.number("Wall.friction", self.friction, low=0.0)
-
-
-@dataclass(frozen=True)
-class Payload:
-    """A sphere that can be attached to the end effector (carried or towed).
-
-    Attributes:
-        mass: Mass [kg].
-        position: Initial centre in the world [m]; required unless ``attach="rigid"`` (the payload then
-            hangs from the end effector).
-        radius: Sphere radius [m].
-        friction: Lateral friction coefficient.
-        attach: ``None`` (free), ``"rigid"`` (point-to-point constraint between the end-effector point and
-            the top of the sphere: the gripper holds it) or ``"tether"`` (a rope: a unilateral spring
-            between the end-effector point and the sphere centre, for pulling-load experiments).
-        tether_length: Rest length of the tether [m].
-        tether_stiffness: Tether stiffness [N/m].
-        tether_damping: Tether damping along the rope [N s/m] (only while taut).
-        rolling_friction: Rolling (and spinning) friction coefficient [m]; a large value (e.g. 1) makes
-            the sphere slide like a sled instead of rolling (a dragged load).
-    """
-
-    mass: float
-    position: tuple[float, float, float] | None = None
-    radius: float = 0.05
-    friction: float = 0.8
-    attach: str | None = None
-    tether_length: float = 1.0
-    tether_stiffness: float = 5000.0
-    tether_damping: float = 100.0
-    rolling_friction: float = 0.0
-
-    def __post_init__(self):
-        checks.number("Payload.mass", self.mass, low=0.0, low_open=True, unit="kg")
-        if self.position is not None:
-            checks.vector("Payload.position", self.position, 3, unit="m")
-        checks.number("Payload.radius", self.radius, low=0.0, low_open=True, unit="m")
-        if self.attach not in (None, "rigid", "tether"):
-            raise ValueError(f"Payload.attach must be None, 'rigid' or 'tether', got {self.attach!r}")
-        if self.position is None and self.attach != "rigid":
-            raise ValueError("Payload.position is required unless attach='rigid'")
-        checks.number("Payload.tether_length", self.tether_length, low=0.0, low_open=True, unit="m")
-        for key in ("friction", "tether_stiffness", "tether_damping", "rolling_friction"):
-            checks.number(f"Payload.{key}", getattr(self, key), low=0.0)
-
-
-SceneObject = Box | Wall | Payload
-
 
 # ---------------------------------------------------------------------------------------------- plant
-class PyBulletPlant(Plant):
+class PyBulletPlant(SceneBodies, ContactReadings, Plant):
     """The robot in PyBullet, with the :class:`~wbmpc.sim.plant.ContactPlant` interface.
 
     Args:
@@ -217,12 +84,9 @@ class PyBulletPlant(Plant):
             ``{name: object}`` (names default to ``box0``, ``wall0``, ``payload0``, ...).
         physics_params: Extra keyword arguments for ``pybullet.setPhysicsEngineParameter`` (e.g.
             ``{"numSolverIterations": 100}``).
-        coulomb_friction: Motor Coulomb friction [N m], scalar or (nj,) (see the module doc).
-        viscous_friction: Motor viscous friction [N m s/rad], scalar or (nj,).
-        friction_velocity: Joint rate [rad/s] over which the Coulomb friction rises (tanh smoothing).
-        armature: Reflected rotor inertia [kg m^2], scalar or (nj,), emulated by a torque.
         base_com_offset: Shift of the base link's centre of mass [m] (3,), base frame; ``None``: none.
-        torque_latency: Delay [s] of the torque commands (rounded to whole steps).
+        clip_torques: Clip the torques to the robot's limits (counted in :attr:`torque_clip_counts`);
+            False behind motors that saturate first (:class:`wbmpc.sim.actuators.ActuatedPlant`).
 
     Raises:
         ValueError: On a non-positive ``dt`` or a negative friction or restitution.
@@ -238,12 +102,8 @@ class PyBulletPlant(Plant):
         joint_damping: bool = True,
         scene: Iterable[SceneObject] | Mapping[str, SceneObject] | None = None,
         physics_params: Mapping[str, object] | None = None,
-        coulomb_friction: float | np.ndarray = 0.0,
-        viscous_friction: float | np.ndarray = 0.0,
-        friction_velocity: float = 0.02,
-        armature: float | np.ndarray = 0.0,
         base_com_offset: np.ndarray | None = None,
-        torque_latency: float = 0.0,
+        clip_torques: bool = True,
     ) -> None:
         if not (np.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be > 0 [s], got {dt}")
@@ -256,19 +116,10 @@ class PyBulletPlant(Plant):
         self._dt = float(dt)
         self._foot_names = tuple(robot.foot_frames)
         self._mu = float(ground_friction)
-        nj = robot.nj
-        self._coulomb = _joint_values(coulomb_friction, nj, "coulomb_friction")
-        self._viscous = _joint_values(viscous_friction, nj, "viscous_friction")
-        self._armature = _joint_values(armature, nj, "armature")
-        if not (np.isfinite(friction_velocity) and friction_velocity > 0.0):
-            raise ValueError(f"friction_velocity must be > 0 [rad/s], got {friction_velocity}")
-        self._friction_velocity = float(friction_velocity)
+        self._clip_torques = bool(clip_torques)
         com_offset = base_com_offset
         if com_offset is not None:
             com_offset = checks.array("base_com_offset", com_offset, 3)
-        if not (np.isfinite(torque_latency) and torque_latency >= 0.0):
-            raise ValueError(f"torque_latency must be >= 0 [s], got {torque_latency}")
-        self._latency_steps = round(torque_latency / self._dt)
         self._client = p.connect(p.DIRECT)
         if self._client < 0:
             raise RuntimeError("could not start a PyBullet DIRECT client")
@@ -298,28 +149,21 @@ class PyBulletPlant(Plant):
             self.close()
             raise
 
-        self._bodies: dict[str, int] = {}
-        self._payloads: dict[str, Payload] = {}
-        self._constraints: dict[str, int] = {}
-        self._tethers: dict[str, Payload] = {}
+        self._init_scene()
         self._t0 = 0.0
         self._steps = 0
         n = robot.n_feet
         self._forces = np.zeros((n, 3))
         self._in_contact = np.zeros(n, dtype=bool)
         self._ee_force = np.zeros(3)
-        self._violations = {k: np.zeros(n, dtype=bool) for k in _VIOLATION_KINDS}
-        self._counts = {k: np.zeros(n, dtype=np.int64) for k in _VIOLATION_KINDS}
+        self._violations = {k: np.zeros(n, dtype=bool) for k in VIOLATION_KINDS}
+        self._counts = {k: np.zeros(n, dtype=np.int64) for k in VIOLATION_KINDS}
         self._clip_counts = np.zeros(robot.nj, dtype=np.int64)
         self._tau_limits = robot.joint_torque_limits
-        self._tau_queue: list[np.ndarray] = []  # torque delay line, oldest first
-        self._v_joint_history: list[np.ndarray] = []  # last three joint rates, for the armature torque
-        self._motor_torque = np.zeros(robot.nj)
-        self._extra_torque = np.zeros(robot.nj)
         self._q = robot.q_nominal
         self._v = np.zeros(robot.nv)
         self.reset(robot.q_nominal, np.zeros(robot.nv))
-        for name, obj in _scene_items(scene):
+        for name, obj in scene_items(scene):
             self.add(obj, name)
 
     # ------------------------------------------------------------------ setup
@@ -445,42 +289,6 @@ class PyBulletPlant(Plant):
         return PlantState(self._q.copy(), self._v.copy(), self.time)
 
     @property
-    def contact(self) -> np.ndarray:
-        """Feet touching the ground after the last step, shape (n_feet,) bool."""
-        return self._in_contact.copy()
-
-    @property
-    def last_contact_forces(self) -> np.ndarray:
-        """Same as :meth:`contact_forces` (the name used by :class:`~wbmpc.sim.plant.ContactPlant`)."""
-        return self._forces.copy()
-
-    @property
-    def last_violations(self) -> dict[str, np.ndarray]:
-        """Per-foot flags of the last step, each shape (n_feet,) bool.
-
-        * ``pulling``: always False (PyBullet contacts are unilateral); kept for key-by-key comparisons with
-          :class:`~wbmpc.sim.plant.ContactPlant`.
-        * ``slipping``: a foot whose friction force reached the friction limit (the contact slides).
-        * ``penetrating``: a foot deeper than 2 mm into the ground.
-        """
-        return {k: flags.copy() for k, flags in self._violations.items()}
-
-    @property
-    def violation_counts(self) -> dict[str, np.ndarray]:
-        """Cumulative per-foot number of steps with each of :attr:`last_violations` since :meth:`reset`."""
-        return {k: counts.copy() for k, counts in self._counts.items()}
-
-    @property
-    def motor_torque(self) -> np.ndarray:
-        """Motor torques [N m] (nj,) of the last step: the clipped command, ``torque_latency`` late."""
-        return self._motor_torque.copy()
-
-    @property
-    def friction_torque(self) -> np.ndarray:
-        """Motor friction plus armature torques [N m] (nj,) added in the last step (0 without them)."""
-        return self._extra_torque.copy()
-
-    @property
     def torque_clip_counts(self) -> np.ndarray:
         """Per-joint number of steps whose commanded torque exceeded the limit since :meth:`reset`, (nj,)."""
         return self._clip_counts.copy()
@@ -556,14 +364,10 @@ class PyBulletPlant(Plant):
         self._forces[:] = 0.0
         self._in_contact[:] = False
         self._ee_force[:] = 0.0
-        for k in _VIOLATION_KINDS:
+        for k in VIOLATION_KINDS:
             self._violations[k][:] = False
             self._counts[k][:] = 0
         self._clip_counts[:] = 0
-        self._tau_queue.clear()
-        self._v_joint_history.clear()
-        self._motor_torque[:] = 0.0
-        self._extra_torque[:] = 0.0
         for name in self._constraints:
             # Carried payloads move with the robot; a constraint error would otherwise yank them.
             self._place_payload_at_ee(name)
@@ -599,10 +403,9 @@ class PyBulletPlant(Plant):
         cid, body = self._client, self._body
         tau = checks.array("tau_joints", tau_joints, self._robot.nj)
         clipped = np.abs(tau) > self._tau_limits
-        if clipped.any():
+        if self._clip_torques and clipped.any():
             self._clip_counts += clipped
             tau = np.clip(tau, -self._tau_limits, self._tau_limits)
-        tau = self._motor_dynamics(tau)
         wrench = None if external_wrench is None else checks.array("external_wrench", external_wrench, 6)
         p.setJointMotorControlArray(body, self._joint_ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
         if wrench is not None:
@@ -615,8 +418,7 @@ class PyBulletPlant(Plant):
             p.applyExternalForce(
                 body, self._ee_link, force, self.ee_position(), p.WORLD_FRAME, physicsClientId=cid
             )
-        for name, payload in self._tethers.items():
-            self._apply_tether(name, payload)
+        self._apply_tethers()
         p.stepSimulation(physicsClientId=cid)
         q, v = self._read_state()
         if not (np.isfinite(q).all() and np.isfinite(v).all()):
@@ -626,82 +428,7 @@ class PyBulletPlant(Plant):
         self._read_contacts()
         return self.state
 
-    def _motor_dynamics(self, tau: np.ndarray) -> np.ndarray:
-        """Joint torques [N m] reaching the links: the command delayed, plus friction and armature torques."""
-        if self._latency_steps:
-            if not self._tau_queue:
-                self._tau_queue.extend(tau.copy() for _ in range(self._latency_steps))
-            self._tau_queue.append(tau.copy())
-            tau = self._tau_queue.pop(0)
-        self._motor_torque = tau
-        qd = self._v[6:]
-        extra = -(self._coulomb * np.tanh(qd / self._friction_velocity) + self._viscous * qd)
-        if self._armature.any():
-            history = self._v_joint_history
-            history.append(qd.copy())
-            del history[:-3]
-            if len(history) == 3:  # mean acceleration over the last two steps
-                extra -= self._armature * (history[2] - history[0]) / (2.0 * self._dt)
-        self._extra_torque = extra
-        return tau + extra
-
-    def _read_contacts(self) -> None:
-        n = self._robot.n_feet
-        forces = [[0.0, 0.0, 0.0] for _ in range(n)]
-        ee = [0.0, 0.0, 0.0]
-        depth = [0.0] * n
-        friction = [0.0] * n  # largest friction force / (mu f_n) over the foot's contact points
-        ground, robot, feet, gripper = self._ground, self._body, self._foot_of_link, self._gripper_links
-        # Plain-float arithmetic: this runs every step and numpy is slow on 3-vectors.
-        for c in p.getContactPoints(bodyA=robot, physicsClientId=self._client):
-            other, link = c[2], c[3]
-            if other == robot:
-                continue
-            # c[7] is the normal on B pointing towards A: these forces act on A, the robot.
-            fn, n_b, f1, d1, f2, d2 = c[9], c[7], c[10], c[11], c[12], c[13]
-            f = [fn * n_b[i] + f1 * d1[i] + f2 * d2[i] for i in range(3)]
-            foot = feet.get(link)
-            if foot is not None:
-                acc = forces[foot]
-                for i in range(3):
-                    acc[i] += f[i]
-                if other != ground:
-                    continue  # a box or a wall: its friction differs, no slip or depth check
-                depth[foot] = min(depth[foot], c[8])
-                if fn > 0.0 and self._mu > 0.0:
-                    friction[foot] = max(friction[foot], (f1 * f1 + f2 * f2) ** 0.5 / (self._mu * fn))
-            elif link in gripper:
-                for i in range(3):
-                    ee[i] += f[i]
-        self._forces = np.array(forces)
-        self._ee_force = np.array(ee)
-        self._in_contact = self._forces[:, 2] > 0.0
-        self._violations["slipping"] = self._in_contact & (np.array(friction) >= _SLIP_RATIO)
-        self._violations["penetrating"] = np.array(depth) < -_PENETRATION_TOL
-        for k in ("slipping", "penetrating"):
-            self._counts[k] += self._violations[k]
-
     # ------------------------------------------------------------------ measurements
-    def contact_forces(self) -> np.ndarray:
-        """World contact forces on the feet during the last step [N], shape (n_feet, 3).
-
-        Sum over the foot's contact points (with the ground or any scene body) of the normal force and the
-        two friction forces; zero rows for feet in the air (and for all feet after :meth:`reset`).
-        """
-        return self._forces.copy()
-
-    def foot_contacts(self, scheduled: np.ndarray | None = None) -> np.ndarray:
-        """Feet pushed upwards by a contact after the last step, shape (n_feet,) bool (``scheduled`` is
-        ignored: the contacts come from the physics)."""
-        return self._in_contact.copy()
-
-    def ee_contact_force(self) -> np.ndarray:
-        """World force [N] of everything except the robot itself on the gripper links (``gripperStator``,
-        ``gripperMover``; the end-effector link for other arms) during the last step, shape (3,)."""
-        if self._ee_link is None:
-            raise ValueError(f"robot {self._robot.name!r} has no end effector")
-        return self._ee_force.copy()
-
     def frame_placement(self, frame: str) -> pin.SE3:
         """World placement of a Pinocchio frame (a foot, the end effector, any link), read from PyBullet."""
         link, offset = self._link_of_frame(frame)
@@ -785,191 +512,6 @@ class PyBulletPlant(Plant):
         self._q, self._v = self._read_state()
         return self.state
 
-    # ------------------------------------------------------------------ scene
-    def add(self, obj: SceneObject, name: str | None = None) -> int:
-        """Add a :class:`Box`, :class:`Wall` or :class:`Payload`; returns its PyBullet body id.
-
-        Raises:
-            ValueError: On an unknown object type, a duplicate name or an invalid attachment.
-        """
-        kinds = {Box: "box", Wall: "wall", Payload: "payload"}
-        if type(obj) not in kinds:
-            raise ValueError(f"scene objects must be Box, Wall or Payload, got {type(obj).__name__}")
-        if name is None:
-            prefix = kinds[type(obj)]
-            name = f"{prefix}{sum(n.startswith(prefix) for n in self._bodies)}"
-        if name in self._bodies:
-            raise ValueError(f"a scene body is already named {name!r}")
-        cid = self._client
-        if isinstance(obj, Box):
-            half = 0.5 * checks.array("Box.size", obj.size, 3)
-            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid)
-            body = p.createMultiBody(
-                obj.mass,
-                shape,
-                basePosition=checks.array("Box.position", obj.position, 3),
-                baseOrientation=p.getQuaternionFromEuler((0.0, 0.0, obj.yaw)),
-                physicsClientId=cid,
-            )
-        elif isinstance(obj, Wall):
-            n = checks.array("Wall.normal", obj.normal, 3)
-            n = n / np.linalg.norm(n)
-            up = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-            up = up - (up @ n) * n
-            up /= np.linalg.norm(up)
-            R = np.column_stack([n, np.cross(up, n), up])  # box x = normal, z = "up" on the face
-            width, height = obj.size
-            shape = p.createCollisionShape(
-                p.GEOM_BOX, halfExtents=[0.5 * obj.thickness, 0.5 * width, 0.5 * height], physicsClientId=cid
-            )
-            centre = checks.array("Wall.position", obj.position, 3) - 0.5 * obj.thickness * n
-            body = p.createMultiBody(
-                0.0,
-                shape,
-                basePosition=centre,
-                baseOrientation=quaternion_from_matrix(R),
-                physicsClientId=cid,
-            )
-        else:
-            if obj.attach not in (None, "rigid", "tether"):
-                raise ValueError(f"Payload.attach must be None, 'rigid' or 'tether', got {obj.attach!r}")
-            if obj.attach is not None and self._ee_link is None:
-                raise ValueError(f"robot {self._robot.name!r} has no end effector to attach a payload to")
-            if obj.position is None and obj.attach != "rigid":
-                raise ValueError("Payload.position is required unless attach='rigid'")
-            if obj.position is None:
-                position = self.ee_position() - [0.0, 0.0, obj.radius]
-            else:
-                position = checks.array("Payload.position", obj.position, 3)
-            shape = p.createCollisionShape(p.GEOM_SPHERE, radius=obj.radius, physicsClientId=cid)
-            body = p.createMultiBody(obj.mass, shape, basePosition=position, physicsClientId=cid)
-            self._payloads[name] = obj
-        p.changeDynamics(body, -1, lateralFriction=obj.friction, physicsClientId=cid)
-        if isinstance(obj, Payload) and obj.rolling_friction > 0:
-            p.changeDynamics(
-                body,
-                -1,
-                rollingFriction=obj.rolling_friction,
-                spinningFriction=obj.rolling_friction,
-                physicsClientId=cid,
-            )
-        self._bodies[name] = body
-        if isinstance(obj, Payload) and obj.attach is not None:
-            self.attach_payload(name, obj.attach)
-        return body
-
-    @property
-    def body_names(self) -> list[str]:
-        """Names of the scene bodies, in the order they were added."""
-        return list(self._bodies)
-
-    def body(self, name: str) -> int:
-        """PyBullet body id of a scene object."""
-        if name not in self._bodies:
-            raise KeyError(f"no scene body named {name!r}; known: {sorted(self._bodies)}")
-        return self._bodies[name]
-
-    def body_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """World position [m] (centre of mass) and quaternion (x, y, z, w) of a scene body."""
-        pos, quat = p.getBasePositionAndOrientation(self.body(name), physicsClientId=self._client)
-        return np.array(pos), np.array(quat)
-
-    def body_velocity(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """World linear [m/s] and angular [rad/s] velocity of a scene body."""
-        lin, ang = p.getBaseVelocity(self.body(name), physicsClientId=self._client)
-        return np.array(lin), np.array(ang)
-
-    def attach_payload(self, name: str, mode: str = "rigid") -> None:
-        """Attach a payload to the end effector.
-
-        ``"rigid"`` moves the payload under the end-effector point and adds a ``JOINT_POINT2POINT``
-        constraint between that point and the top of the sphere (collisions between the payload and the
-        robot are disabled, the gripper encloses it). ``"tether"`` adds a rope of the payload's
-        ``tether_length``: a spring that only pulls, applied every step between the end-effector point and
-        the sphere centre.
-        """
-        if name not in self._payloads:
-            raise KeyError(f"no payload named {name!r}; known: {sorted(self._payloads)}")
-        if self._ee_link is None:
-            raise ValueError(f"robot {self._robot.name!r} has no end effector to attach a payload to")
-        self.detach_payload(name)
-        payload, cid = self._payloads[name], self._client
-        if mode == "rigid":
-            body = self._bodies[name]
-            for link in range(-1, p.getNumJoints(self._body, physicsClientId=cid)):
-                p.setCollisionFilterPair(self._body, body, link, -1, 0, physicsClientId=cid)
-            # Constraint frames are given in the link's inertial frame, not its URDF frame.
-            info = p.getDynamicsInfo(self._body, self._ee_link, physicsClientId=cid)
-            pivot = rotation_matrix(np.array(info[4])).T @ (self._ee_offset.translation - np.array(info[3]))
-            constraint = p.createConstraint(
-                self._body,
-                self._ee_link,
-                body,
-                -1,
-                p.JOINT_POINT2POINT,
-                [0.0, 0.0, 0.0],
-                pivot.tolist(),
-                [0.0, 0.0, payload.radius],
-                physicsClientId=cid,
-            )
-            p.changeConstraint(constraint, maxForce=1e5, physicsClientId=cid)
-            self._constraints[name] = constraint
-            self._place_payload_at_ee(name)
-        elif mode == "tether":
-            self._tethers[name] = payload
-        else:
-            raise ValueError(f"mode must be 'rigid' or 'tether', got {mode!r}")
-
-    def detach_payload(self, name: str) -> None:
-        """Release a payload (no-op if it is not attached); collisions with the robot are restored."""
-        cid = self._client
-        constraint = self._constraints.pop(name, None)
-        if constraint is not None:
-            p.removeConstraint(constraint, physicsClientId=cid)
-            for link in range(-1, p.getNumJoints(self._body, physicsClientId=cid)):
-                p.setCollisionFilterPair(self._body, self._bodies[name], link, -1, 1, physicsClientId=cid)
-        self._tethers.pop(name, None)
-
-    def _place_payload_at_ee(self, name: str) -> None:
-        payload = self._payloads[name]
-        top = self.ee_position()
-        p.resetBasePositionAndOrientation(
-            self._bodies[name], top - [0.0, 0.0, payload.radius], [0, 0, 0, 1], physicsClientId=self._client
-        )
-        p.resetBaseVelocity(
-            self._bodies[name], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=self._client
-        )
-
-    def _apply_tether(self, name: str, payload: Payload) -> None:
-        cid = self._client
-        s = p.getLinkState(
-            self._body,
-            self._ee_link,
-            computeLinkVelocity=True,
-            computeForwardKinematics=True,
-            physicsClientId=cid,
-        )
-        R = rotation_matrix(np.array(s[5]))
-        r = R @ self._ee_offset.translation
-        p_ee = np.array(s[4]) + r
-        v_ee = np.array(s[6]) + cross3(s[7], r - np.subtract(s[0], s[4]))
-        body = self._bodies[name]
-        pos, _ = p.getBasePositionAndOrientation(body, physicsClientId=cid)
-        vel, _ = p.getBaseVelocity(body, physicsClientId=cid)
-        d = np.array(pos) - p_ee
-        length = np.linalg.norm(d)
-        if length <= payload.tether_length or length < 1e-9:
-            return
-        u = d / length
-        stretch_rate = u @ (np.array(vel) - v_ee)
-        tension = max(
-            0.0,
-            payload.tether_stiffness * (length - payload.tether_length)
-            + payload.tether_damping * stretch_rate,
-        )
-        p.applyExternalForce(body, -1, -tension * u, pos, p.WORLD_FRAME, physicsClientId=cid)
-        p.applyExternalForce(self._body, self._ee_link, tension * u, p_ee, p.WORLD_FRAME, physicsClientId=cid)
-
     # ------------------------------------------------------------------ lifetime
     def close(self) -> None:
         """Disconnect the PyBullet client (idempotent)."""
@@ -979,34 +521,8 @@ class PyBulletPlant(Plant):
             finally:
                 self._client = -1
 
-    def __enter__(self) -> PyBulletPlant:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
     def __del__(self) -> None:
         try:
             self.close()
         except Exception:  # interpreter shutdown: pybullet may already be gone
             pass
-
-
-# ---------------------------------------------------------------------------------------------- helpers
-def _joint_values(x, nj: int, name: str) -> np.ndarray:
-    """A per-joint parameter >= 0: scalar or (nj,), as an (nj,) array."""
-    arr = np.broadcast_to(np.asarray(x, dtype=float), (nj,)).copy() if np.ndim(x) == 0 else None
-    arr = checks.array(name, x, nj) if arr is None else arr
-    if not np.isfinite(arr).all() or np.any(arr < 0):
-        raise ValueError(f"{name} must be finite and >= 0, got {x!r}")
-    return arr
-
-
-def _scene_items(scene) -> list[tuple[str | None, SceneObject]]:
-    if scene is None:
-        return []
-    if isinstance(scene, Mapping):
-        return list(scene.items())
-    if isinstance(scene, (Box, Wall, Payload)):
-        return [(None, scene)]
-    return [(None, obj) for obj in scene]

@@ -49,11 +49,14 @@ def summarize(
     fell: bool,
     torque_violations: int,
     plant: Plant | None = None,
+    gait=None,
 ) -> dict:
     """Key numbers of a run: solve-time statistics (in-process), convergence, tracking, safety.
 
-    ``log`` is the run's log or its columns by name (:meth:`ClosedLoopLog.arrays`).
+    ``log`` is the run's log or its columns by name (:meth:`ClosedLoopLog.arrays`); ``gait`` the gait walked
+    (default: the MPC's configured one).
     """
+    gait = mpc.config.gait if gait is None else gait
     arrays = log if isinstance(log, Mapping) else log.arrays()
     solve_ms = 1e3 * arrays["solve_time"]
     warm = solve_ms[1:] if solve_ms.size > 1 else solve_ms
@@ -65,16 +68,17 @@ def summarize(
     )
     ee_err = ee_err[np.isfinite(ee_err)]
     q = arrays["q"]
+    low, sensing = config.low_level, config.sensing
     summary = {
         "robot": mpc.robot.name,
-        "gait": mpc.config.gait.name,
+        "gait": gait.name,
         "solver": mpc.config.solver,
         "compiled": mpc.config.compiled,
-        "plant": config.plant,
+        "plant": config.plant.kind,
         "nodes": mpc.n_nodes,
         "duration_s": float(arrays["t"][-1]) if len(arrays["t"]) else 0.0,
         "requested_duration_s": config.duration,
-        "base_velocity_cmd": list(config.base_velocity),
+        "base_velocity_cmd": list(config.commands.base_velocity),
         "mpc_solves": int(len(solve_ms)),
         "solve_ms": {
             "median": float(np.median(warm)) if warm.size else None,
@@ -101,16 +105,16 @@ def summarize(
         "torque_violations": int(torque_violations),
         "fell": bool(fell),
         "low_level": {
-            "kp": config.kp,
-            "kd": config.kd,
-            "arm_gains": list(config.arm_gains) if config.arm_gains is not None else None,
-            "rate_hz": config.low_level_rate,
+            "kp": low.kp,
+            "kd": low.kd,
+            "arm_gains": list(low.arm_gains) if low.arm_gains is not None else None,
+            "rate_hz": low.rate,
         },
         "delay": config.delay,
-        "sensor_noise": None if config.sensor_noise is None else vars(config.sensor_noise),
-        "velocity_cutoff_hz": config.velocity_cutoff_hz,
+        "sensor_noise": None if sensing.noise is None else vars(sensing.noise),
+        "velocity_cutoff_hz": sensing.velocity_cutoff_hz,
         "mpc_rate_hz": config.mpc_rate,
-        "plant_dt_s": config.plant_dt,
+        "plant_dt_s": config.plant.dt,
         "machine": machine_description(),
         "blasfeo": blasfeo_record(),
     }
@@ -120,7 +124,7 @@ def summarize(
             "plant steps x feet: stance foot pulling / outside the friction cone; swing foot more than "
             "0.1 mm below the ground"
         )
-    summary |= _contact_summary(mpc, arrays)
+    summary |= _contact_summary(gait, arrays)
     summary["tracking"] = command_tracking(arrays)
     return summary
 
@@ -176,7 +180,7 @@ def command_tracking(arrays: Mapping[str, np.ndarray], settle: float = 1.0) -> l
     return out
 
 
-def _contact_summary(mpc: WholeBodyMPC, arrays: dict) -> dict:
+def _contact_summary(gait, arrays: dict) -> dict:
     """Swing-foot clearance and agreement of the MPC's first-stage contacts with the plant's schedule."""
     out = {"holds": int(np.sum(arrays["hold"])) if arrays["hold"].size else 0}
     if arrays["foot_height"].size:
@@ -185,6 +189,6 @@ def _contact_summary(mpc: WholeBodyMPC, arrays: dict) -> dict:
         out["swing_foot_min_height_m"] = float(heights.min()) if heights.size else None
     if arrays["plan_contact"].size:
         fresh = np.asarray(arrays["success"], bool) & ~np.asarray(arrays["fallback"], bool)
-        plant = mpc.config.gait.sample(arrays["solve_t"]).contact.T
+        plant = gait.sample(arrays["solve_t"]).contact.T
         out["node0_contact_mismatches"] = int(np.sum(np.any(arrays["plan_contact"] != plant, axis=1) & fresh))
     return out

@@ -68,6 +68,7 @@ def run_case(
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import make_gait
     from wbmpc.sim.closed_loop import ClosedLoopConfig, machine_description, run_closed_loop
+    from wbmpc.sim.loop_config import LowLevelConfig
     from wbmpc.solver import blasfeo
 
     config = MPCConfig(gait=make_gait("trot"), solver=solver, compiled=compiled)
@@ -87,7 +88,7 @@ def run_case(
     setup_s = time.perf_counter() - start
     if gate is not None:
         gate(mpc)
-    loop = ClosedLoopConfig(duration=(steps + warmup) / 80.0, kp=kp, kd=kd)
+    loop = ClosedLoopConfig(duration=(steps + warmup) / 80.0, low_level=LowLevelConfig(kp=kp, kd=kd))
     result = run_closed_loop(mpc, loop, progress=progress)
     log = result.log
     ms = 1e3 * np.asarray(log.solve_time[warmup:])

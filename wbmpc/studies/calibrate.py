@@ -6,7 +6,7 @@ of a robot that stands still for a while, then trots:
 * each joint group's Coulomb and viscous friction and armature from the torque-tracking error of the free
   limbs (:func:`wbmpc.estimation.identification.identify_joint_friction`: the legs in swing, the arm);
 * the base's centre-of-mass offset and the front/rear force split from the standing samples
-  (:func:`wbmpc.studies.hardware_logs.identify_com_offset`), with the torques the links receive
+  (:func:`wbmpc.analysis.identify_com_offset`), with the torques the links receive
   (:meth:`~wbmpc.estimation.identification.FrictionIdentification.applied_torque`: the commands less the
   identified friction, which the slowly creeping standing joints still carry);
 
@@ -48,7 +48,7 @@ class CalibrationResult:
 
     Attributes:
         calibration: The :class:`~wbmpc.model.calibration.Calibration` (not yet saved).
-        com: The :class:`~wbmpc.studies.hardware_logs.ComIdentification` of the standing samples.
+        com: The :class:`~wbmpc.analysis.ComIdentification` of the standing samples.
         friction: The :class:`~wbmpc.estimation.identification.FrictionIdentification`.
     """
 
@@ -115,11 +115,11 @@ def calibrate(
         FileNotFoundError: if ``source`` does not exist.
         ValueError: if the log has too few standing samples, lacks a column, or an option is bad.
     """
+    from wbmpc.analysis import identify_com_offset, standing_mask
     from wbmpc.estimation.identification import identify_joint_friction
     from wbmpc.io.logs import RunLog
     from wbmpc.model.calibration import Calibration, JointParameters
     from wbmpc.model.robot import load
-    from wbmpc.studies.hardware_logs import identify_com_offset, standing_mask
 
     nominal = load(robot) if isinstance(robot, str) else robot
     friction_options = {"delay": delay, "friction_velocity": friction_velocity, "base": base}

@@ -65,11 +65,12 @@ def run_case(plant: str, command: tuple[float, float, float], trot: float, robot
     Raises:
         ValueError: an unknown plant.
     """
+    from wbmpc.analysis import emulated_mpc, record_emulated_run
     from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import parse_gait_schedule
     from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
-    from wbmpc.studies.hardware_logs import emulated_mpc, record_emulated_run
+    from wbmpc.sim.loop_config import CommandSchedule, PlantConfig
 
     if plant not in PLANTS:
         raise ValueError(f"unknown plant {plant!r}; available: {list(PLANTS)}")
@@ -85,7 +86,11 @@ def run_case(plant: str, command: tuple[float, float, float], trot: float, robot
     if plant == "emulated":
         result, _ = record_emulated_run(gait=gait, robot=robot, mpc=mpc)
     else:
-        config = ClosedLoopConfig(duration=schedule.duration, plant=plant, arm_reference=None)
+        config = ClosedLoopConfig(
+            duration=schedule.duration,
+            plant=PlantConfig(kind=plant),
+            commands=CommandSchedule(arm_reference=None),
+        )
         result = run_closed_loop(mpc, config, progress=False)
     s = result.summary
     moving = [seg for seg in s["tracking"] if any(abs(c) > 0 for c in seg["commanded"])]

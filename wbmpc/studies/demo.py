@@ -168,6 +168,7 @@ def main(argv: list[str] | None = None) -> dict:
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import make_gait, parse_gait_schedule
     from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+    from wbmpc.sim.loop_config import CommandSchedule, LowLevelConfig, PlantConfig
 
     try:
         if ":" in args.gait or "," in args.gait:
@@ -200,10 +201,13 @@ def main(argv: list[str] | None = None) -> dict:
         f"{mpc.ocp.n_constraints} constraints, {mpc.n_nodes} nodes"
     )
     loop = ClosedLoopConfig(
-        duration=args.duration, kp=args.kp, kd=args.kd, base_velocity=(args.speed, 0.0, 0.0), plant=args.plant
+        duration=args.duration,
+        low_level=LowLevelConfig(kp=args.kp, kd=args.kd),
+        commands=CommandSchedule(base_velocity=(args.speed, 0.0, 0.0)),
+        plant=PlantConfig(kind=args.plant),
     )
     if args.no_arm_task or not robot.has_arm:
-        loop.arm_reference = None
+        loop.commands.arm_reference = None
     out = args.output
     out.mkdir(parents=True, exist_ok=True)
     log_path = out / "log.npz"  # columnar run log (wbmpc.io.logs) streamed as the run goes: load_log reads it

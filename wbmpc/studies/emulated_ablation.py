@@ -163,8 +163,8 @@ def summarize_records(records: list[dict], t_start: float) -> dict:
 
 def run_variant(name: str, spec: dict, gait: str, robot, calibrated_robot, progress: bool = False) -> dict:
     """One variant on the emulated robot: the run's summary numbers and the solve records' aggregates."""
+    from wbmpc.analysis import emulated_mpc, record_emulated_run
     from wbmpc.ocp.gait import parse_gait_schedule
-    from wbmpc.studies.hardware_logs import emulated_mpc, record_emulated_run
 
     mpc = emulated_mpc(calibrated_robot if spec["calibrated"] else robot, parse_gait_schedule(gait))
     recorder = SolveRecorder(mpc)
@@ -217,10 +217,10 @@ def main(argv: list[str] | None = None) -> dict:
     cli_checks.writable_file(parser, "--output", args.output, "ablation.json")
     from tqdm.auto import tqdm
 
+    from wbmpc.model.base_com import shift_base_com
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.sim.closed_loop import machine_description
     from wbmpc.sim.hardware import HardwareProfile
-    from wbmpc.studies.hardware_logs import shift_base_com
 
     robot = load_b1_z1()
     calibrated = shift_base_com(robot, HardwareProfile().base_com_offset)

@@ -82,9 +82,9 @@ def run_summary(result, gait: str, wall_s: float) -> dict:
 
 def record(output: Path = HARDWARE, progress: bool = True) -> dict:
     """The two recorded trials and the calibration files (see the module doc); returns what was written."""
+    from wbmpc.analysis import record_emulated_run, write_robot_bag
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.studies.calibrate import calibrate
-    from wbmpc.studies.hardware_logs import record_emulated_run, write_robot_bag
 
     robot = load_b1_z1()
     written = {}
@@ -138,12 +138,13 @@ def record(output: Path = HARDWARE, progress: bool = True) -> dict:
 
 def targets(calibration: Path, output: Path, gait: str = TARGET_RUN, progress: bool = True) -> dict:
     """The target run with the calibrated and the nominal model, and the ideal plant (see the module doc)."""
+    from wbmpc.analysis import record_emulated_run
     from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import parse_gait_schedule
     from wbmpc.sim.closed_loop import ClosedLoopConfig, machine_description, run_closed_loop
-    from wbmpc.studies.hardware_logs import record_emulated_run
+    from wbmpc.sim.loop_config import CommandSchedule
 
     robot = load_b1_z1()
     calibrated = load_b1_z1(calibration=calibration)
@@ -153,7 +154,9 @@ def targets(calibration: Path, output: Path, gait: str = TARGET_RUN, progress: b
     ideal_mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=schedule, compiled=True))
     ideal_mpc.verbose = False
     ideal = run_closed_loop(
-        ideal_mpc, ClosedLoopConfig(duration=schedule.duration, arm_reference=None), progress=progress
+        ideal_mpc,
+        ClosedLoopConfig(duration=schedule.duration, commands=CommandSchedule(arm_reference=None)),
+        progress=progress,
     )
     rows["ideal_plant"] = run_summary(ideal, gait, time.perf_counter() - start)
     for name, model in (("calibrated", calibrated), ("uncalibrated", robot)):

@@ -103,13 +103,15 @@ def run(
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import make_gait
     from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+    from wbmpc.sim.loop_config import CommandSchedule
 
     robot = load("b1_z1")
     mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes), MPCConfig(gait=make_gait("stand")))
     mpc.verbose = False
     sampler = RssSampler(every, max_wall, verbose)
     config = ClosedLoopConfig(
-        duration=60.0 * minutes, base_velocity=(0.0, 0.0, 0.0), arm_reference=None, command_schedule=sampler
+        duration=60.0 * minutes,
+        commands=CommandSchedule(base_velocity=(0.0, 0.0, 0.0), arm_reference=None, overrides=sampler),
     )
     start = time.perf_counter()
     stopped = None

@@ -1,32 +1,24 @@
 """Meshcat visualisation: the robot, contact forces, predicted foot and end-effector paths, replays.
 
-:func:`visual_model` rebuilds the robot's visual geometry with the same locked joints as
-:attr:`wbmpc.model.robot.Robot.model`. :class:`Viewer` wraps Pinocchio's ``MeshcatVisualizer`` on a meshcat
-server that it starts itself (a zmq subprocess; it runs headless, a browser is only needed to look)::
+:class:`Viewer` wraps Pinocchio's ``MeshcatVisualizer`` on a meshcat server that it starts itself (a zmq
+subprocess; it runs headless, a browser is only needed to look)::
 
     viewer = Viewer(robot)
     viewer.show_plan(plan)                          # robot at node 0, force arrows, predicted paths
     viewer.animation(log["q"], log["t"])            # a replay, played by the browser
     viewer.export_html("data/output/replay.html")   # self-contained file, opens without a server
 
-A replay frames itself: the camera looks at the centre of the box swept by the base and stands back far
-enough for the whole motion (:func:`camera_for_motion`).
-
-The B1 and Z1 meshes are large (about 100 MB of Collada files, a million triangles). By default the
-viewer sends each mesh decimated by vertex clustering on a 5 mm grid (about 15 % of the triangles) with
-vertex normals, which keeps the scene and the exported HTML at a few MB. ``mesh_resolution=None`` sends
-the original files.
+The robot's visual geometry comes from :mod:`wbmpc.viz.geometry` (:func:`~wbmpc.viz.geometry.visual_model`),
+its meshes decimated by :mod:`wbmpc.viz.meshes`. A replay frames itself: the camera looks at the centre of
+the box swept by the base and stands back far enough for the whole motion
+(:func:`~wbmpc.viz.camera.camera_for_motion`).
 """
 
 from __future__ import annotations
 
 import io
 import time
-import warnings
-import xml.etree.ElementTree as ET
-from collections.abc import Sequence
 from contextlib import redirect_stdout
-from functools import lru_cache
 from pathlib import Path
 
 import meshcat
@@ -35,288 +27,21 @@ import numpy as np
 import pinocchio as pin
 import zmq
 from meshcat.animation import Animation
-from pinocchio.visualize import MeshcatVisualizer
 
-from wbmpc.model.robot import Robot, RobotModelError
-from wbmpc.model.urdf import default_package_dirs, resolve_mesh_path
+from wbmpc.model.robot import Robot
+from wbmpc.viz.camera import CAMERA_DIRECTION, camera_for_motion, robot_radius
+from wbmpc.viz.geometry import visual_model
+from wbmpc.viz.meshes import DEFAULT_MESH_RESOLUTION, GHOST_MESH_RESOLUTION, _RobotVisualizer
 from wbmpc.viz.plots import EE_COLOR, FOOT_COLORS
 
 FOOT_FORCE_COLOR = 0xD62728  # red
 ARM_FORCE_COLOR = 0x1F5FD0  # blue
 BASE_PATH_COLOR = 0x555555
 GHOST_COLOR = (0.55, 0.6, 0.7, 0.3)  # translucent grey-blue (RGBA)
-DEFAULT_MESH_RESOLUTION = 0.005  # [m] vertex-clustering cell of the decimated meshes
-GHOST_MESH_RESOLUTION = 0.012  # [m] the same for the translucent ghosts
-CAMERA_DIRECTION = (1.3, -1.6, 0.9)  # from the target towards the camera: front right, above
-CAMERA_FOV = 75.0  # [deg] meshcat's vertical field of view
 
 
 class ViewerUnavailableError(RuntimeError):
     """Raised when no meshcat server can be started or reached."""
-
-
-# --- visual geometry -----------------------------------------------------------------------------------
-def visual_model(robot: Robot) -> tuple[pin.Model, pin.GeometryModel]:
-    """The robot's visual geometry on a kinematic model with the same locked joints as ``robot.model``.
-
-    The full model and its visual geometry are read from ``robot.urdf_path`` (mesh references resolve as
-    in :func:`resolve_mesh_path`, the rule the PyBullet plant uses too), then reduced with the locked joints
-    at their ``robot.locked_joints`` angles. Frames that ``robot.model`` has but the
-    URDF does not (the end-effector tool point) are copied over. If the meshes cannot be loaded, each mesh
-    is replaced by the link's primitive collision shapes and a warning is issued: the viewer still works.
-
-    Args:
-        robot: The robot.
-
-    Returns:
-        The reduced model (same joints, configuration layout and frame placements as ``robot.model``) and its
-        visual geometry model.
-
-    Raises:
-        RobotModelError: if the reduced model does not match ``robot.model`` (nq or joint names).
-    """
-    full, geom = _full_visual_model(str(robot.urdf_path), default_package_dirs())
-    lock_ids = [full.getJointId(name) for name in robot.locked_joints]
-    if lock_ids:
-        q_ref = pin.neutral(full)
-        for name, angle in robot.locked_joints.items():
-            joint = full.joints[full.getJointId(name)]
-            if joint.nq == 1:
-                q_ref[joint.idx_q] = angle
-            elif joint.nq == 2:  # continuous joint: (cos, sin)
-                q_ref[joint.idx_q : joint.idx_q + 2] = np.cos(angle), np.sin(angle)
-        model, geoms = pin.buildReducedModel(full, [geom], lock_ids, q_ref)
-        geom = geoms[0]
-    else:
-        model, geom = full.copy(), geom.copy()
-    if model.nq != robot.model.nq or list(model.names) != list(robot.model.names):
-        raise RobotModelError(
-            f"visual model does not match robot.model: nq {model.nq} vs {robot.model.nq}, "
-            f"joints {list(model.names)} vs {list(robot.model.names)}"
-        )
-    for frame in robot.model.frames:
-        if model.existFrame(frame.name):
-            continue
-        parent_frame = robot.model.frames[frame.parentFrame].name
-        model.addFrame(
-            pin.Frame(
-                frame.name,
-                frame.parentJoint,  # same joint order (checked above)
-                model.getFrameId(parent_frame) if model.existFrame(parent_frame) else 0,
-                frame.placement,
-                frame.type,
-            )
-        )
-    model.name = robot.model.name
-    return model, geom
-
-
-def _urdf_with_resolved_meshes(urdf: str, package_dirs: Sequence[str]) -> str:
-    """URDF text with every mesh ``filename`` made absolute by :func:`resolve_mesh_path`."""
-    root = ET.parse(urdf).getroot()
-    for mesh in root.iter("mesh"):
-        mesh.set("filename", resolve_mesh_path(mesh.get("filename", ""), urdf, package_dirs))
-    return ET.tostring(root, encoding="unicode")
-
-
-@lru_cache(maxsize=4)
-def _full_visual_model(urdf: str, package_dirs: tuple[str, ...]) -> tuple[pin.Model, pin.GeometryModel]:
-    """Full model and visual geometry of a URDF (cached: loading the B1 + Z1 meshes takes seconds)."""
-    full = pin.buildModelFromUrdf(urdf, pin.JointModelFreeFlyer())
-    try:
-        loader = _mesh_loader()
-        kwargs = {"package_dirs": list(package_dirs)} | ({"mesh_loader": loader} if loader else {})
-        text = _urdf_with_resolved_meshes(urdf, package_dirs)
-        geom = pin.buildGeomFromUrdfString(full, text, pin.GeometryType.VISUAL, **kwargs)
-    except (ValueError, RuntimeError, OSError) as exc:
-        warnings.warn(
-            f"could not load the visual meshes of {urdf} ({exc}); showing primitive shapes instead",
-            stacklevel=3,
-        )
-        geom = pin.buildGeomFromUrdfString(full, _urdf_without_meshes(urdf), pin.GeometryType.VISUAL)
-    return full, geom
-
-
-def _mesh_loader():
-    """A caching mesh loader with cheap (OBB) bounding volumes, or ``None`` for Pinocchio's default."""
-    try:
-        import coal
-
-        return coal.CachedMeshLoader(coal.NODE_TYPE.BV_OBB)
-    except (ImportError, AttributeError, TypeError):
-        return None
-
-
-def _urdf_without_meshes(urdf: str) -> str:
-    """URDF text where every mesh visual is replaced by the link's primitive collision shapes."""
-    root = ET.parse(urdf).getroot()
-    for link in root.iter("link"):
-        elements = link.findall("visual") + link.findall("collision")
-        meshes = [e for e in elements if e.find("geometry/mesh") is not None]
-        for element in meshes:
-            link.remove(element)
-        if any(e.tag == "visual" for e in meshes):
-            for collision in link.findall("collision"):
-                stand_in = ET.fromstring(ET.tostring(collision))
-                stand_in.tag = "visual"
-                link.append(stand_in)
-    return ET.tostring(root, encoding="unicode")
-
-
-# --- decimated meshes ----------------------------------------------------------------------------------
-def simplify_mesh(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
-    """Decimate a triangle mesh by vertex clustering: one vertex per occupied cubic cell.
-
-    Vertices in the same ``cell``-sized grid cell merge into their mean; triangles that collapse (two
-    corners in one cell) and duplicates are dropped. The shape is kept to about ``cell``.
-
-    Args:
-        vertices: (n, 3) vertex positions [m].
-        faces: (m, 3) vertex indices of the triangles.
-        cell: Grid cell size [m].
-
-    Returns:
-        The decimated vertices (n', 3) and faces (m', 3).
-    """
-    vertices = np.asarray(vertices, dtype=float)
-    faces = np.asarray(faces, dtype=np.int64)
-    if len(vertices) == 0 or len(faces) == 0:
-        return vertices.reshape(-1, 3), faces.reshape(-1, 3)
-    _, cluster = np.unique(np.floor(vertices / cell).astype(np.int64), axis=0, return_inverse=True)
-    cluster = cluster.ravel()
-    counts = np.bincount(cluster)
-    merged = np.zeros((counts.size, 3))
-    np.add.at(merged, cluster, vertices)
-    merged /= counts[:, None]
-    f = cluster[faces]
-    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
-    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
-    f = f[np.sort(first)]
-    used = np.unique(f)
-    remap = np.full(counts.size, -1, dtype=np.int64)
-    remap[used] = np.arange(used.size)
-    return merged[used], remap[f]
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit vertex normals (n, 3): the area-weighted sum of the adjacent face normals."""
-    v = np.asarray(vertices, dtype=float)
-    f = np.asarray(faces, dtype=np.int64)
-    face_normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # |n| = 2 x area
-    normals = np.zeros_like(v)
-    for corner in range(3):
-        np.add.at(normals, f[:, corner], face_normals)
-    norm = np.linalg.norm(normals, axis=1, keepdims=True)
-    return normals / np.where(norm > 0, norm, 1.0)
-
-
-class _IndexedMeshGeometry(mg.Geometry):
-    """A triangle mesh with vertex normals (meshcat's TriangularMeshGeometry sends none)."""
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray):
-        super().__init__()
-        self.vertices = np.asarray(vertices, dtype=np.float32)
-        self.faces = np.asarray(faces, dtype=np.uint32)
-        self.normals = np.asarray(normals, dtype=np.float32)
-
-    def lower(self, object_data):
-        return {
-            "uuid": self.uuid,
-            "type": "BufferGeometry",
-            "data": {
-                "attributes": {
-                    "position": mg.pack_numpy_array(self.vertices.T),
-                    "normal": mg.pack_numpy_array(self.normals.T),
-                },
-                "index": mg.pack_numpy_array(self.faces.T),
-            },
-        }
-
-
-_MESH_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-
-def _decimated_mesh(geometry_object: pin.GeometryObject, cell: float):
-    """Decimated (vertices, faces, normals) of a mesh geometry object, or ``None`` if it is not a mesh."""
-    geometry = geometry_object.geometry
-    if not (hasattr(geometry, "vertices") and hasattr(geometry, "tri_indices")):
-        return None
-    scale = np.asarray(geometry_object.meshScale, dtype=float)
-    key = (geometry_object.meshPath, tuple(scale), cell)
-    if key not in _MESH_CACHE:
-        tri = geometry.tri_indices
-        faces = np.array([(t[0], t[1], t[2]) for t in map(tri, range(geometry.num_tris))], dtype=np.int64)
-        # The loader applied meshScale to the vertices; Pinocchio applies it again in the transforms.
-        vertices = np.asarray(geometry.vertices(), dtype=float) / np.where(scale != 0, scale, 1.0)
-        vertices, faces = simplify_mesh(vertices, faces, cell)
-        _MESH_CACHE[key] = (vertices, faces, vertex_normals(vertices, faces))
-    return _MESH_CACHE[key]
-
-
-class _RobotVisualizer(MeshcatVisualizer):
-    """Pinocchio's meshcat visualizer, sending decimated meshes when a resolution is given."""
-
-    def __init__(self, model, geometry, mesh_resolution: float | None):
-        super().__init__(model, None, geometry)
-        self.mesh_resolution = mesh_resolution
-
-    def loadViewerGeometryObject(self, geometry_object, geometry_type, color=None):
-        mesh = _decimated_mesh(geometry_object, self.mesh_resolution) if self.mesh_resolution else None
-        if mesh is None:
-            return super().loadViewerGeometryObject(geometry_object, geometry_type, color)
-        rgba = np.asarray(geometry_object.meshColor if color is None else color, dtype=float)
-        material = mg.MeshPhongMaterial(color=_rgb_int(rgba[:3]), opacity=float(rgba[3]))
-        node = self.viewer[self.getViewerNodeName(geometry_object, geometry_type)]
-        node.set_object(mg.Mesh(_IndexedMeshGeometry(*mesh), material))
-
-
-# --- camera --------------------------------------------------------------------------------------------
-def camera_for_motion(
-    base_positions: np.ndarray,
-    robot_radius: float,
-    direction=CAMERA_DIRECTION,
-    fov: float = CAMERA_FOV,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Camera target and position that keep a whole motion in view.
-
-    The target is the centre of the axis-aligned box swept by the base. The motion fits in a sphere about
-    the target whose radius is half the box diagonal plus ``robot_radius``; the camera stands on
-    ``direction`` from the target at the distance where that sphere fills the vertical field of view.
-
-    Args:
-        base_positions: Base positions [m], (n, 3) (or (3,) for one pose).
-        robot_radius: Radius [m] of a sphere about the base that holds the robot.
-        direction: Direction from the target to the camera (world axes, z up); its length is ignored.
-        fov: Vertical field of view [deg] (the smaller one of a landscape window).
-
-    Returns:
-        The target and the camera position [m], each (3,).
-    """
-    points = np.asarray(base_positions, dtype=float).reshape(-1, 3)
-    lower, upper = points.min(axis=0), points.max(axis=0)
-    target = (lower + upper) / 2
-    radius = np.linalg.norm(upper - lower) / 2 + float(robot_radius)
-    distance = radius / np.sin(np.radians(fov) / 2)
-    direction = np.asarray(direction, dtype=float)
-    return target, target + distance * direction / np.linalg.norm(direction)
-
-
-def robot_radius(model: pin.Model, geometry: pin.GeometryModel, q: np.ndarray) -> float:
-    """Radius [m] of a sphere about the base that holds every visual geometry at configuration ``q``.
-
-    Each geometry counts as the sphere about its local bounding box (meshes are scaled on loading).
-    """
-    data, geometry_data = model.createData(), geometry.createData()
-    pin.forwardKinematics(model, data, q)
-    pin.updateGeometryPlacements(model, data, geometry, geometry_data)
-    base = np.asarray(q[:3], dtype=float)
-    radius = 0.0
-    for obj, placement in zip(geometry.geometryObjects, geometry_data.oMg, strict=True):
-        shape = obj.geometry
-        shape.computeLocalAABB()
-        centre = placement.act(np.asarray(shape.aabb_center, dtype=float))
-        radius = max(radius, float(np.linalg.norm(centre - base) + shape.aabb_radius))
-    return radius
 
 
 # --- the viewer ------------------------------------------------------------------------------------------
@@ -699,11 +424,6 @@ def _probe_server(zmq_url: str, timeout: float) -> None:
         ) from exc
     finally:
         socket.close()
-
-
-def _rgb_int(rgb) -> int:
-    r, g, b = (int(round(255 * float(np.clip(c, 0.0, 1.0)))) for c in rgb[:3])
-    return (r << 16) + (g << 8) + b
 
 
 def _color_int(color: int | str) -> int:

@@ -84,16 +84,19 @@ def closed_loop_case(case: dict) -> dict:
 
     from wbmpc.ocp.gait import make_gait
     from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+    from wbmpc.sim.loop_config import CommandSchedule, PlantConfig
 
     mpc = _closed_loop_mpc(case.get("nodes", 15), case.get("compiled", True))
     mpc.config = replace(mpc.config, gait=make_gait(case.get("gait", "trot"), 0.8))
     mpc.reset()
     config = ClosedLoopConfig(
         duration=case.get("duration", 0.5),
-        plant="rigid",
-        arm_reference=None,
-        base_velocity=(case.get("speed", 0.0), 0.0, 0.0),
-        base_yaw_rate=case.get("yaw_rate", 0.0),
+        plant=PlantConfig(kind="rigid"),
+        commands=CommandSchedule(
+            arm_reference=None,
+            base_velocity=(case.get("speed", 0.0), 0.0, 0.0),
+            base_yaw_rate=case.get("yaw_rate", 0.0),
+        ),
     )
     result = run_closed_loop(mpc, config, progress=False)
     s = result.summary
@@ -134,12 +137,13 @@ NOISE = {
 
 
 def _experiment_setup(case: dict, **mpc_kwargs):
-    """(experiments module, robot, nodes, MPC config) for a PyBullet case (``quick``, ``nodes``, ``compiled``
-    override the experiments' defaults: compiled with 15 nodes, quick in-process with 10)."""
+    """(the experiments' helpers :mod:`wbmpc.studies.experiments.common`, robot, nodes, MPC config) for a
+    PyBullet case (``quick``, ``nodes``, ``compiled`` override the experiments' defaults: compiled with 15
+    nodes, quick in-process with 10)."""
     from dataclasses import replace
 
     from wbmpc.model.robot import load_b1_z1
-    from wbmpc.studies import experiments as ex
+    from wbmpc.studies.experiments import common as ex
 
     if "robot" not in _ROBOT:
         _ROBOT["robot"] = load_b1_z1()
@@ -207,6 +211,7 @@ def robustness_case(case: dict) -> dict:
     import pinocchio as pin
 
     from wbmpc.sim.disturbances import Kick
+    from wbmpc.sim.loop_config import SensingConfig
 
     # 15 nodes in quick mode too (in-process): a 10-node horizon (0.37 s) falls short of the swing it aborts.
     ex, robot, nodes, config = _experiment_setup({"nodes": 15, **case}, gait=_trot())
@@ -223,8 +228,7 @@ def robustness_case(case: dict) -> dict:
         duration=t_kick + after,
         disturbances=(Kick(t_kick, tuple(magnitude * direction)),) if magnitude > 0 else (),
         delay=_delay(case),
-        sensor_noise=noise,
-        velocity_cutoff_hz=50.0 if noise is not None else None,
+        sensing=SensingConfig(noise=noise, velocity_cutoff_hz=50.0 if noise is not None else None),
     )
     mpc = ex._mpc(robot, nodes, config)
     mpc.verbose = False
@@ -269,7 +273,7 @@ def robustness_case(case: dict) -> dict:
 
 def _trot():
     from wbmpc.ocp.gait import make_gait
-    from wbmpc.studies.experiments import GAIT_PERIOD
+    from wbmpc.studies.experiments.common import GAIT_PERIOD
 
     return make_gait("trot", GAIT_PERIOD)
 
@@ -304,12 +308,14 @@ def payload_case(case: dict) -> dict:
     """Pull a tethered sliding load (``experiments.pulling_load``): ``mass`` [kg], ``walking`` (trot
     backwards at 0.1 m/s; False: stand, the arm pulls back at 5 cm/s), ``quick``. Success: no fall and the
     load moves at least half the commanded displacement."""
-    ex, robot, nodes, config = _experiment_setup(case)
+    from wbmpc.studies.experiments.pulling import _pull_report, _pull_run
+
+    _, robot, nodes, config = _experiment_setup(case)
     quick = bool(case.get("quick", False))
     mass = float(case.get("mass", 10.0))
     walking = bool(case.get("walking", True))
-    result, force = ex._pull_run(robot, nodes, config, quick, mass, walking, progress=False)
-    report = ex._pull_report(result, walking, mass, force)
+    result, force = _pull_run(robot, nodes, config, quick, mass, walking, progress=False)
+    report = _pull_report(result, walking, mass, force)
     report.pop("mass_kg", None)
     report.pop("walking", None)
     return {
@@ -334,8 +340,9 @@ def nodes_case(case: dict) -> dict:
     quick = bool(case.get("quick", False))
     loop = ex._base_loop(
         duration=float(case.get("duration", 0.6 if quick else 4.0)),
-        base_velocity=(0.2, 0.0, 0.0),
-        arm_reference=ArmReference(ramp=0.3 if quick else 1.0),
+        commands=ex._commands(
+            base_velocity=(0.2, 0.0, 0.0), arm_reference=ArmReference(ramp=0.3 if quick else 1.0)
+        ),
     )
     mpc = ex._mpc(robot, nodes, config)
     mpc.verbose = False
@@ -370,6 +377,7 @@ def time_steps_case(case: dict) -> dict:
     import numpy as np
 
     from wbmpc.ocp.time_grid import geometric_time_steps
+    from wbmpc.sim.loop_config import LowLevelConfig, SensingConfig
 
     ex, robot, _, config = _experiment_setup(case, gait=_trot())
     quick = bool(case.get("quick", False))
@@ -379,10 +387,9 @@ def time_steps_case(case: dict) -> dict:
     config = replace(config, dt_min=dt_min, dt_max=dt_max)
     loop = ex._base_loop(
         duration=float(case.get("duration", 0.6 if quick else 10.0)),
-        kd=5.0,
         delay=_delay(case),
-        velocity_cutoff_hz=50.0,
-        sensor_noise=_sensor(case),
+        low_level=LowLevelConfig(kd=5.0),
+        sensing=SensingConfig(velocity_cutoff_hz=50.0, noise=_sensor(case)),
     )
     mpc = ex._mpc(robot, nodes, config)
     mpc.verbose = False

@@ -1,0 +1,5 @@
+"""``python -m wbmpc.studies.experiments``: see :mod:`wbmpc.studies.experiments.cli`."""
+
+from wbmpc.studies.experiments.cli import main
+
+main()
