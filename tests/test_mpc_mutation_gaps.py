@@ -360,3 +360,158 @@ def test_a_robot_without_an_arm_holds_too(monkeypatch):
     plan = mpc.solve(b1.q_nominal, np.zeros(b1.nv), t=0.0)
     assert plan.hold and plan.forces.shape[1] == 4
     assert plan.forces[0, :, 2].sum() == pytest.approx(b1.mass * b1.gravity)
+
+
+# --- the failed-solve rule: the retry's report, the counts, the flags (mutants of solve 53 to 297) ---------
+def _scripted(mpc, monkeypatch, outcomes):
+    """Replace every solver call by a scripted outcome ``(w or None, success, iterations, solve_time)``:
+    ``None`` is a solver that raised (no iterate, no count); exact binary times make the sums exact."""
+    calls = []
+
+    def run(solver, args):
+        w, success, iterations, solve_time = outcomes[len(calls)]
+        calls.append(args)
+        status = "success" if success else ("solver_exception" if w is None else "max_iter_exceeded")
+        report = {
+            "success": success,
+            "status": status,
+            "reason": "" if success else f"scripted {status}",
+            "iterations": iterations,
+            "solve_time": solve_time,
+            "constraint_violation": np.inf if w is None else 0.0,
+            "timings": {"wall": solve_time},
+        }
+        return w, None if w is None else np.zeros(mpc.ocp.n_constraints), report
+
+    monkeypatch.setattr(mpc, "_solver", lambda cold, max_iter=None: None)
+    monkeypatch.setattr(mpc, "_run_solver", run)
+    return calls
+
+
+@pytest.mark.parametrize(
+    "warm, retry, iterations",
+    [
+        ("iterate", "iterate", 7 + 9),  # both stop at their caps: the iterations add up
+        ("iterate", "raise", 7),  # the retry raised: the warm solve's count alone
+        ("raise", "iterate", 0),  # the retry stopped at once: 0 iterations ran (not "no count")
+        ("raise", "raise", -1),  # neither counted
+    ],
+)
+def test_a_failed_retry_reports_both_times_and_the_iterations_that_ran(
+    robot, monkeypatch, warm, retry, iterations
+):
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    assert first.success
+    iterate = first.w + 1.0
+    outcome = {
+        ("warm", "iterate"): (iterate, False, 7, 0.25),
+        ("warm", "raise"): (None, False, -1, 0.25),
+        ("retry", "iterate"): (iterate - 2.0, False, 0 if warm == "raise" else 9, 0.5),
+        ("retry", "raise"): (None, False, -1, 0.5),
+    }
+    calls = _scripted(mpc, monkeypatch, [outcome["warm", warm], outcome["retry", retry]])
+    second = mpc.solve(q, v, t=0.01)
+    assert len(calls) == 2
+    assert second.success is False and second.fallback is True and second.hold is False
+    assert second.solve_time == 0.75  # the warm solve's time and the retry's
+    assert second.iterations == iterations
+    assert second.reason.startswith("warm start: ") and "; cold retry: scripted " in second.reason
+    for name in PLAN:
+        np.testing.assert_array_equal(getattr(second, name), getattr(first, name), err_msg=name)
+    assert mpc.previous is first
+
+
+def test_a_converged_retry_is_the_new_plan_with_both_times(robot, monkeypatch):
+    """The warm solve stops at its cap, the cold retry converges: the retry's plan is applied (not the warm
+    iterate), becomes the warm start, and reports both solves' time and iterations."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    _scripted(mpc, monkeypatch, [(first.w + 1.0, False, 7, 0.25), (first.w, True, 5, 0.5)])
+    second = mpc.solve(q, v, t=0.01)
+    assert second.success and not second.fallback and second.reason == ""
+    assert second.solve_time == 0.75 and second.iterations == 12 and second.timings["cold_retry"] == 1.0
+    np.testing.assert_array_equal(second.w, first.w)
+    assert mpc.previous is second and mpc.stats["failures"] == 0 and mpc.stats["cold_retries"] == 1
+
+
+def test_every_failure_and_every_hold_is_counted(robot, monkeypatch):
+    """Two failed first solves are two holds and two failures; after a converged plan, two failed solves
+    are two fallbacks to it (and no hold)."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    with monkeypatch.context() as patch:
+        patch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+        for t in (0.0, 0.01):
+            plan = mpc.solve(q, v, t=t)
+            assert plan.hold and plan.t == t
+    assert mpc.stats["holds"] == 2 and mpc.stats["failures"] == 2 and mpc.stats["solves"] == 2
+    first = mpc.solve(q, v, t=0.02)
+    assert first.success and first.hold is False
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    for t in (0.03, 0.04):
+        plan = mpc.solve(q, v, t=t)
+        assert plan.fallback is True and plan.hold is False and plan.t == first.t
+    assert mpc.stats["holds"] == 2 and mpc.stats["failures"] == 4 and mpc.stats["solves"] == 5
+    assert mpc.stats["cold_retries"] == 2 and mpc.stats["exceptions"] == 2 + 2 + 2
+
+
+def test_the_total_time_is_the_time_of_the_call(robot):
+    """``timings["total"]`` is the whole call: at least the solver's share, at most the caller's clock."""
+    import time
+
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    for t in (0.0, 0.01):  # a cold start, a warm start
+        start = time.perf_counter()
+        plan = mpc.solve(q, v, t=t)
+        elapsed = time.perf_counter() - start
+        assert plan.success and 0.0 < plan.solve_time <= plan.timings["total"] <= elapsed
+
+
+def test_the_findings_are_those_of_the_gait_in_force(robot, monkeypatch):
+    """A speed command while a schedule stands, then trots: the plan carries the stand's
+    ``speed_without_stepping`` warning, and no speed finding once the trot is in force (its stride reaches
+    0.3 m/s); the hand held still in the world while the base walks is flagged in both."""
+    from wbmpc.ocp.gait import GaitSchedule
+
+    schedule = GaitSchedule([(make_gait("stand"), 0.4), (make_gait("trot"), 1.6)])
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=schedule, dt_max=0.03))
+    mpc.verbose = False
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    walk = Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0]))
+    both = {"speed_without_stepping", "ee_world_hold_with_walking_base"}
+    standing = mpc.solve(q, v, t=0.1, commands=walk)
+    assert {f.code for f in standing.findings} == both
+    assert any("'stand'" in f.message for f in standing.findings)
+    assert mpc.solve(q, v, t=0.1).findings == ()  # nothing commanded
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    failed = mpc.solve(q, v, t=0.12, commands=walk)  # a fallback carries this solve's findings
+    assert failed.fallback and not failed.hold and {f.code for f in failed.findings} == both
+    mpc.reset()
+    trotting = mpc.solve(q, v, t=0.9, commands=walk)  # a hold carries them too
+    assert trotting.hold and {f.code for f in trotting.findings} == {"ee_world_hold_with_walking_base"}
+
+
+def test_a_push_during_a_swing_aborts_it_in_the_solve(robot, monkeypatch):
+    """A trot, a lateral push just after lift-off (measured base velocity 0.6 m/s off the plan's): the swing
+    is aborted and the OCP plans that foot in stance (it is on the ground) until its nominal touchdown."""
+    mpc = _mpc(robot, gait="trot", n_nodes=6)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    assert mpc.solve(q, v, t=0.0).success
+    t = 0.02
+    swinging = ~mpc.config.gait.sample(np.array([t])).contact[:, 0]
+    assert swinging.sum() == 2
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    pushed = v.copy()
+    pushed[1] = 0.6
+    mpc.solve(q, pushed, t=t)
+    assert sorted(mpc.aborted_swings) == list(np.flatnonzero(swinging))
+    contact = mpc.ocp.params.unpack(mpc.last_inputs["p"], "contact")
+    assert np.all(contact[swinging] == 1.0)
+    # Unpushed, the same solve plans them in swing.
+    mpc.reset()
+    mpc.solve(q, v, t=t)
+    assert np.all(mpc.ocp.params.unpack(mpc.last_inputs["p"], "contact")[swinging, 0] == 0.0)
