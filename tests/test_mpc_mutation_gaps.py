@@ -515,3 +515,183 @@ def test_a_push_during_a_swing_aborts_it_in_the_solve(robot, monkeypatch):
     mpc.reset()
     mpc.solve(q, v, t=t)
     assert np.all(mpc.ocp.params.unpack(mpc.last_inputs["p"], "contact")[swinging, 0] == 0.0)
+
+
+# --- the static hold, the cold guess, a commanded base height (mutants of hold_plan, cold_guess,
+# pose_at_height, desired_configuration) -----------------------------------------------------------------
+def _assert_balanced(robot, q, forces, tau):
+    """Rest at ``q``: gravity = the joint torques and the contact forces (feet, and the hand if any)."""
+    model, data = robot.model, robot.model.createData()
+    g = pin.computeGeneralizedGravity(model, data, q).copy()
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    JtF = sum(
+        pin.getFrameJacobian(model, data, robot.frame_id(f), pin.LOCAL_WORLD_ALIGNED)[:3].T @ forces[i]
+        for i, f in enumerate(robot.contact_frames)
+    )
+    np.testing.assert_allclose(g - np.r_[np.zeros(6), tau] - JtF, 0.0, atol=1e-7)
+
+
+def _flight_gait():
+    """A bound whose swings overlap: all four feet in the air from 0.4 s to 0.48 s of each 0.8 s cycle."""
+    from wbmpc.ocp.gait import Gait
+
+    return Gait("flight", 0.8, 0.6, (0.0, 0.0, 0.5, 0.5), make_gait("trot").tick)
+
+
+def test_a_hold_without_a_report_is_the_documented_rest_plan(robot):
+    """``hold_plan`` called directly (no solver report): the measured pose on every node at rest, the
+    static torques on every torque node, the stage contact flags, and the report fields' defaults."""
+    mpc = _mpc(robot, gait="walk")
+    q = pin.integrate(robot.model, robot.q_nominal, 0.02 * np.sin(np.arange(robot.nv)))
+    params = mpc.parameters(q, np.zeros(robot.nv), 0.25, Commands(ee_force=np.array([0.0, 0.0, -20.0])))
+    plan = mpc.hold_plan(q, 0.25, params)
+    N = mpc.n_nodes
+    assert plan.t == 0.25 and plan.dts.shape == (N - 1,) and np.all(plan.dts == mpc.time_steps())
+    np.testing.assert_array_equal(plan.q, np.tile(q, (N, 1)))
+    np.testing.assert_array_equal(plan.v, np.zeros((N, robot.nv)))
+    np.testing.assert_array_equal(plan.a, np.zeros((N - 1, robot.nv)))
+    assert plan.forces.shape == (N - 1, len(robot.contact_frames), 3)
+    assert plan.tau.shape == (mpc.ocp.settings.n_tau_nodes, robot.nj)
+    for k in range(N - 1):
+        np.testing.assert_array_equal(plan.forces[k], plan.forces[0])
+    for k in range(len(plan.tau)):
+        np.testing.assert_array_equal(plan.tau[k], plan.tau[0])
+    np.testing.assert_array_equal(plan.contact, params["contact"] > 0.5)
+    assert plan.contact.dtype == bool and plan.contact.any() and not plan.contact.all()
+    assert plan.success is False and plan.fallback is True and plan.hold is True
+    assert plan.iterations == -1 and plan.solve_time == 0.0 and plan.status == "hold" and plan.reason == ""
+    assert plan.findings == () and plan.constraint_violation == np.inf and plan.timings == {}
+
+
+def test_a_hold_carries_the_whole_failed_report(robot, monkeypatch):
+    """A first solve that stops unconverged: the hold reports its iterations, time, status, reason,
+    violation, timings and this solve's findings (not the defaults)."""
+    mpc = _mpc(robot)
+    _scripted(mpc, monkeypatch, [(np.zeros(mpc.ocp.n_variables), False, 7, 0.25)])
+    walk = Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0]))  # standing: a speed finding
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0, commands=walk)
+    assert plan.hold and plan.success is False
+    assert plan.iterations == 7 and plan.solve_time == 0.25 and plan.status == "max_iter_exceeded"
+    assert plan.reason == "scripted max_iter_exceeded" and plan.constraint_violation == 0.0
+    assert plan.timings["wall"] == 0.25 and "total" in plan.timings
+    assert "speed_without_stepping" in {f.code for f in plan.findings}
+
+
+@pytest.mark.parametrize(
+    "t, carrying",
+    [
+        (0.25, [True, True, True, False]),  # rear-right in swing: the other three hold the pose alone
+        (0.05, [True] * 4),  # front-left in swing: rear-right would have to pull, all four hold it
+        (0.19, [True] * 4),  # as at 0.05 on stage 0; the next stage's three would hold: not used
+        (0.42, [True] * 4),  # a flight phase: no stance foot, all four hold it
+    ],
+)
+def test_the_hold_is_the_stance_of_the_first_stage_when_it_can_hold(robot, t, carrying):
+    """A walk (one foot in swing at a time) and a gait with a flight phase: the hold stands on the scheduled
+    stance of stage 0 when it balances the pose with pushing feet, otherwise on all four; it always
+    balances gravity and the commanded arm force, and no foot pulls."""
+    gait = _flight_gait() if t == 0.42 else make_gait("walk")
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=gait, dt_max=0.03))
+    q = robot.q_nominal
+    load = np.array([0.0, 0.0, -20.0])
+    params = mpc.parameters(q, np.zeros(robot.nv), t, Commands(ee_force=load))
+    plan = mpc.hold_plan(q, t, params)
+    if t == 0.19:
+        assert list(plan.contact[:, 1]) == [True, True, True, False]  # the next stage's stance differs
+    np.testing.assert_array_equal(np.abs(plan.forces[0, :4, 2]) > 1.0, carrying)
+    assert np.all(plan.forces[0, :4, 2] >= 0.0)
+    np.testing.assert_array_equal(plan.forces[0, 4], load)
+    _assert_balanced(robot, q, plan.forces[0], plan.tau[0])
+
+
+def test_the_cold_guess_of_a_robot_without_an_arm_is_feasible():
+    """The B1 alone: static forces and torques on its four feet (no arm force anywhere), every row met."""
+    from wbmpc.model.robot import load_b1
+
+    b1 = load_b1()
+    mpc = WholeBodyMPC(b1, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))
+    q, v = b1.q_nominal, np.zeros(b1.nv)
+    params = mpc.parameters(q, v, 0.0, Commands())
+    x0 = mpc.cold_guess(q, v, params)
+    p = mpc.ocp.params.pack(params)
+    assert _violation(mpc, x0, p) < 1e-8
+    split = mpc.ocp.split(x0, p)
+    assert split["F"].shape[1] == 12
+    np.testing.assert_allclose(split["F"][:, 2::3].sum(axis=1), b1.mass * b1.gravity)
+
+
+def test_the_cold_guess_of_a_flight_phase_has_no_foot_force(robot):
+    """Nodes with no stance foot get zero foot forces and zero torques (no static solution); the other nodes
+    are static (the static-equilibrium forces of their stance with the arm's load)."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=_flight_gait(), dt_max=0.03))
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    load = np.array([2.0, 0.0, -10.0])
+    params = mpc.parameters(q, v, 0.39, Commands(ee_force=load))
+    flight = ~params["contact"].astype(bool).any(axis=0)
+    assert flight.any() and not flight.all()
+    split = mpc.ocp.split(mpc.cold_guess(q, v, params), mpc.ocp.params.pack(params))
+    F = split["F"].reshape(mpc.n_nodes - 1, -1, 3)
+    np.testing.assert_array_equal(F[flight, :4], 0.0)
+    from wbmpc.model.statics import static_equilibrium
+
+    for k in np.flatnonzero(~flight):
+        stance = params["contact"][:, k] > 0.5
+        np.testing.assert_allclose(
+            F[k], static_equilibrium(robot, q, stance, ee_force=load).forces, atol=1e-9
+        )
+    tau = split["tau"]
+    np.testing.assert_array_equal(tau[flight[: len(tau)]], 0.0)
+
+
+def _feet(robot, q):
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, q)
+    return np.array([data.oMf[robot.frame_id(f)].translation for f in robot.foot_frames])
+
+
+def test_a_commanded_base_height_keeps_the_feet_where_the_nominal_pose_has_them(robot):
+    """``pose_at_height``: the base at the height (same x, y, orientation), the leg joints that keep every
+    foot at its nominal position, the arm's joints unchanged, within the joint limits; one pose per 0.1 mm."""
+    mpc = _mpc(robot)
+    nominal = robot.q_nominal
+    arm = [robot.joint_index_v(n) + 1 for n in robot.arm_joint_names]  # q index of a revolute joint
+    legs = np.setdiff1d(np.arange(7, robot.nq), arm)
+    lower, upper = robot.model.lowerPositionLimit, robot.model.upperPositionLimit
+    for height in (round(nominal[2] - 0.08, 4), round(nominal[2] + 0.05, 4)):  # on the 0.1 mm grid
+        q = mpc.pose_at_height(height)
+        assert q[2] == height
+        np.testing.assert_array_equal(q[[0, 1]], nominal[[0, 1]])
+        np.testing.assert_allclose(q[3:7], nominal[3:7], atol=1e-12)
+        np.testing.assert_array_equal(q[arm], nominal[arm])
+        np.testing.assert_allclose(_feet(robot, q), _feet(robot, nominal), atol=1e-8)
+        assert np.abs(q[legs] - nominal[legs]).max() > 1e-3
+        # The same legs within the same 0.1 mm (the feet within 0.05 mm), the base where asked; a copy.
+        near = mpc.pose_at_height(height + 3e-5)
+        np.testing.assert_array_equal(near[legs], q[legs])
+        assert near[2] == height + 3e-5
+        np.testing.assert_allclose(_feet(robot, near)[:, 2], _feet(robot, nominal)[:, 2] + 3e-5, atol=1e-8)
+        q[:] = 0.0
+        assert mpc.pose_at_height(height)[2] == height
+    # Beyond the legs' range the knees stop at their limits (low: lower, high: upper).
+    for height in (0.2, 0.75):
+        q = mpc.pose_at_height(height)
+        assert np.all(q[7:] >= lower[7:]) and np.all(q[7:] <= upper[7:])
+
+
+def test_the_desired_pose_of_a_height_command(robot):
+    """A base height command: the desired configuration is the height's pose at the measured x, y and
+    heading (level), and the posture cost's target ``dq_des`` leads there."""
+    mpc = _mpc(robot)
+    q = robot.q_nominal.copy()
+    q[:2] = (1.2, -0.7)
+    q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.1, -0.05, 0.6)).coeffs()
+    height = robot.q_nominal[2] - 0.06
+    params = mpc.parameters(q, np.zeros(robot.nv), 0.0, Commands(base_height=height))
+    q_des = pin.integrate(robot.model, q, params["dq_des"])
+    expected = mpc.pose_at_height(height)
+    np.testing.assert_allclose(q_des[:3], [1.2, -0.7, height], atol=1e-12)
+    R = pin.Quaternion(q_des[3:7]).normalized().toRotationMatrix()
+    np.testing.assert_allclose(R, pin.rpy.rpyToMatrix(0.0, 0.0, 0.6), atol=1e-12)
+    np.testing.assert_allclose(q_des[7:], expected[7:], atol=1e-12)
+    assert np.abs(expected[7:] - robot.q_nominal[7:]).max() > 1e-3
