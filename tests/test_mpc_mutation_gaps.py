@@ -695,3 +695,141 @@ def test_the_desired_pose_of_a_height_command(robot):
     np.testing.assert_allclose(R, pin.rpy.rpyToMatrix(0.0, 0.0, 0.6), atol=1e-12)
     np.testing.assert_allclose(q_des[7:], expected[7:], atol=1e-12)
     assert np.abs(expected[7:] - robot.q_nominal[7:]).max() > 1e-3
+
+
+# --- one solver call's report (mutants of _run_solver) ------------------------------------------------------
+class _Returns:
+    """A solver stand-in that returns ``w`` and ``g`` with the given statistics."""
+
+    def __init__(self, w, g, stats):
+        self.w, self.g, self._stats = w, g, stats
+
+    def __call__(self, **args):
+        return {"x": self.w.copy(), "g": self.g.copy(), "lam_g": np.zeros(self.g.size), "f": 0.0}
+
+    def stats(self):
+        return dict(self._stats)
+
+
+CONVERGED = {
+    "success": True,
+    "return_status": 0,
+    "iter_count": 4,
+    "fatrop": {"return_flag": 0, "iterations_count": 4, "time_total": 1e-3},
+}
+
+
+def test_the_reported_violation_is_that_of_the_returned_point(robot, monkeypatch):
+    """A converged plan reports the bound violation of its own constraint values; a returned point half a
+    unit under a lower bound or a quarter over an upper one reports that."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    plan = mpc.solve(q, v, t=0.0)
+    assert plan.success and 0.0 <= plan.constraint_violation < 1e-3
+    assert plan.constraint_violation == pytest.approx(
+        _violation(mpc, plan.w, mpc.last_inputs["p"]), abs=1e-12
+    )
+    lbg, ubg = mpc.ocp.lbg, mpc.ocp.ubg
+    inequality = np.flatnonzero(np.isfinite(lbg) & np.isfinite(ubg) & (lbg < ubg))
+    lower_only = np.flatnonzero(np.isfinite(lbg) & ~np.isfinite(ubg))
+    assert inequality.size and lower_only.size
+    for row, g_row, expected in (
+        (lower_only[0], lbg[lower_only[0]] - 0.5, 0.5),
+        (inequality[0], ubg[inequality[0]] + 0.25, 0.25),
+        (inequality[0], lbg[inequality[0]] - 0.125, 0.125),
+    ):
+        g = np.clip(np.zeros(lbg.size), lbg, ubg)
+        g[row] = g_row
+        fake = _Returns(plan.w, g, {**CONVERGED, "success": False, "fatrop": {"return_flag": 1}})
+        monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None, fake=fake: fake)
+        w, lam_g, report = mpc._run_solver(fake, mpc.last_inputs)
+        assert report["constraint_violation"] == pytest.approx(expected, abs=1e-12)
+        assert report["success"] is False and report["status"] == "max_iter_exceeded"
+
+
+def test_a_non_finite_iterate_is_never_a_success(robot, monkeypatch):
+    """The solver says it converged but returns a NaN: not a success, said so; the previous plan is kept."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    w = first.w.copy()
+    w[3] = np.nan
+    fake = _Returns(w, np.zeros(mpc.ocp.n_constraints), CONVERGED)
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: fake)
+    second = mpc.solve(q, v, t=0.01)
+    assert second.success is False and second.fallback and mpc.previous is first
+    assert second.status == "non_finite_solution" and second.reason.endswith(
+        "cold retry: the solver returned NaN or inf"
+    )
+    _, _, report = mpc._run_solver(fake, mpc.last_inputs)
+    assert report["status"] == "non_finite_solution" and report["reason"] == "the solver returned NaN or inf"
+    assert report["iterations"] == 4 and report["success"] is False
+
+
+def test_statistics_without_success_or_count_are_a_failure_without_count(robot, monkeypatch):
+    """A solver whose statistics say neither success nor an iteration count: a failure (the hold), -1."""
+    mpc = _mpc(robot)
+    fake = _Returns(np.zeros(mpc.ocp.n_variables), np.zeros(mpc.ocp.n_constraints), {})
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: fake)
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    assert plan.hold and plan.success is False and plan.iterations == -1 and plan.reason != ""
+
+
+def test_a_raising_solver_reports_no_count_no_point_and_its_time(robot, monkeypatch):
+    """A raising solver: no iteration count (-1), no point (infinite violation), its wall time within the
+    call's; each raise is counted."""
+    import time
+
+    mpc = _mpc(robot)
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    for n in (1, 2):
+        start = time.perf_counter()
+        plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+        elapsed = time.perf_counter() - start
+        assert plan.hold and plan.iterations == -1 and plan.constraint_violation == np.inf
+        assert plan.status == "solver_exception" and mpc.stats["exceptions"] == n
+        assert 0.0 < plan.solve_time == plan.timings["wall"] <= plan.timings["total"] <= elapsed
+
+
+def test_solver_timings_split_the_wall_time():
+    """Where a solve's time went: the derivative evaluations (every ``t_wall_nlp_*``), the solver's own
+    work (its total minus them), the Python overhead (the wall time minus its total); Fatrop's total and
+    split when it reports them, else CasADi's total, else the wall time."""
+    from wbmpc.control.mpc import solver_timings
+
+    evaluations = {
+        "t_wall_nlp_f": 0.0625,
+        "t_wall_nlp_hess_l": 0.125,
+        "t_wall_nlp_jac_g": 0.25,
+        "t_proc_x": 8.0,
+    }
+    fatrop = {"time_total": 1.0, "compute_sd_time": 0.375, "initialization_time": 0.03125}
+    cases = [
+        (
+            {**evaluations, "t_wall_total": 4.0, "fatrop": fatrop},
+            1.0,
+            {"search_direction": 0.375, "initialization": 0.03125},
+        ),
+        (
+            {**evaluations, "t_wall_total": 4.0, "fatrop": {"time_total": 1.0}},
+            1.0,
+            {"search_direction": 0.0, "initialization": 0.0},
+        ),
+        ({**evaluations, "t_wall_total": 4.0}, 4.0, {}),  # IPOPT: CasADi's total
+        ({**evaluations, "t_wall_total": 4.0, "fatrop": "n/a"}, 4.0, {}),
+        (dict(evaluations), 2.0, {}),  # no total at all: the wall time
+        ({}, 2.0, {"evaluations": 0.0, "hessian": 0.0, "jacobian": 0.0}),
+    ]
+    for stats, total, extra in cases:
+        expected = {
+            "wall": 2.0,
+            "evaluations": 0.4375,
+            "hessian": 0.125,
+            "jacobian": 0.25,
+            "solver": total - 0.4375,
+            "overhead": 2.0 - total,
+        }
+        expected.update(extra)
+        if not stats:
+            expected["solver"] = total
+        assert solver_timings(stats, 2.0) == expected, stats
