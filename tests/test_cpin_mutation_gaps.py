@@ -168,7 +168,16 @@ def _model(*joints, placement=None):
         (_model(pin.JointModelRX()), "needs a free-flyer root joint"),
         (_model(pin.JointModelRX(), pin.JointModelFreeFlyer()), "free-flyer joint 'j1' must be the root"),
         (_model(pin.JointModelFreeFlyer(), placement=pin.SE3.Random()), "'j0' must have an identity joint"),
-        (_model(pin.JointModelFreeFlyer(), pin.JointModelSpherical()), "'j1' has type JointModelSpherical"),
+        (
+            _model(
+                pin.JointModelFreeFlyer(), placement=pin.SE3(pin.utils.rotate("z", np.pi / 2), np.zeros(3))
+            ),
+            "'j0' must have an identity joint",
+        ),
+        (
+            _model(pin.JointModelFreeFlyer(), pin.JointModelSpherical()),
+            r"'j1' has type JointModelSpherical, which .* \(free flyer, revolute and prismatic joints only\)",
+        ),
         (pin.Model(), "needs a free-flyer root joint"),
     ],
 )
@@ -391,3 +400,27 @@ def test_a_second_tree_attached_to_the_world_is_refused():
     model.appendBodyToJoint(j, pin.Inertia.Random(), pin.SE3.Identity())
     with pytest.raises(ValueError, match="joint 'world_arm' is attached to the world"):
         cpin.SymbolicModel(model)
+
+
+def test_aba_defaults_and_methods_of_aba_function():
+    """``aba`` without a method is the articulated-body algorithm (what the forward-dynamics formulation
+    calls); ``aba_function`` builds the method it is given, and is called "aba" by default."""
+    robot = load_b1()
+    model, data = robot.model, robot.model.createData()
+    smodel = cpin.SymbolicModel(model)
+    q, v, tau = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv), ca.SX.sym("tau", smodel.nv)
+    default = ca.Function("default", [q, v, tau], [cpin.aba(smodel, q, v, tau)])
+    rng = np.random.default_rng(16)
+    q0, v0, a0 = random_state(model, rng)
+    tau0 = pin.rnea(model, data, q0, v0, a0)
+    assert_close(np.array(default(q0, v0, tau0)).ravel(), a0, rtol=1e-9 * np.abs(tau0).max())
+    assert default.n_instructions() == cpin.aba_function(smodel, []).n_instructions()
+    assert cpin.aba_function(smodel, robot.contact_frames).name() == "aba"
+    F = ca.SX.sym("F", 3 * len(robot.contact_frames))
+    forces = {frame: F[3 * i : 3 * i + 3] for i, frame in enumerate(robot.contact_frames)}
+    counts = {}
+    for method in ("articulated", "crba"):
+        direct = ca.Function("direct", [q, v, tau, F], [cpin.aba(smodel, q, v, tau, forces, method)])
+        counts[method] = cpin.aba_function(smodel, robot.contact_frames, method).n_instructions()
+        assert counts[method] == direct.n_instructions(), method
+    assert counts["articulated"] != counts["crba"]
