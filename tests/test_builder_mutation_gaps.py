@@ -280,13 +280,14 @@ def test_forward_dynamics_transition_uses_the_applied_forces(robot):
 
 def test_unit_rows_keep_the_feasible_set_with_unit_bounds():
     """Finite ranges become ``-1 <= (x - mid) / half <= 1``; infinite, huge or empty ranges (an equality) are
-    left as they are, without a warning from the infinite bounds."""
+    left as they are, without a warning from the infinite or largest-float bounds."""
     from wbmpc.ocp.builder import _unit_rows
 
-    lower = np.array([-2.0, 0.5, -3.0, -np.inf, -1e7, 1.5, -np.inf, 2.0])
-    upper = np.array([3.0, 0.75, 2e5, 4.0, 1e7, 1.5, np.inf, np.inf])
-    scaled = np.arange(8) < 3
-    x = ca.SX.sym("x", 8)
+    big = np.finfo(float).max  # Pinocchio's "no limit" (continuous joints): the range overflows to inf
+    lower = np.array([-2.0, 0.5, -3.0, -np.inf, -1e7, 1.5, -np.inf, 2.0, -big])
+    upper = np.array([3.0, 0.75, 2e5, 4.0, 1e7, 1.5, np.inf, np.inf, big])
+    scaled = np.arange(9) < 3
+    x = ca.SX.sym("x", 9)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         expr, lo, hi = _unit_rows(x, lower, upper)
@@ -297,7 +298,7 @@ def test_unit_rows_keep_the_feasible_set_with_unit_bounds():
     np.testing.assert_array_equal(hi[~scaled], upper[~scaled])
     f = ca.Function("f", [x], [expr])
     rng = np.random.default_rng(0)
-    for x0 in rng.uniform(-5.0, 5.0, (5, 8)):
+    for x0 in rng.uniform(-5.0, 5.0, (5, 9)):
         rows = np.asarray(f(x0)).ravel()
         mid, half = (upper[scaled] + lower[scaled]) / 2, (upper[scaled] - lower[scaled]) / 2
         np.testing.assert_allclose(rows[scaled], (x0[scaled] - mid) / half, rtol=1e-14)
@@ -308,7 +309,7 @@ def test_unit_rows_keep_the_feasible_set_with_unit_bounds():
     expr, lo, hi = _unit_rows(x[:2], [0, -1], [1, 3])
     np.testing.assert_array_equal(lo, -1.0)
     np.testing.assert_allclose(
-        np.asarray(ca.Function("g", [x], [expr])(np.full(8, 0.5))).ravel(), [0.0, -0.25]
+        np.asarray(ca.Function("g", [x], [expr])(np.full(9, 0.5))).ravel(), [0.0, -0.25]
     )
 
 
@@ -336,6 +337,10 @@ def test_parameter_layout_packs_column_major_and_unpacks():
     np.testing.assert_array_equal(P.unpack(p, "s"), [7.0])
     P.unpack(p, "a")[:] = 0.0  # a copy
     assert p[0] == 1.0
+    two = ParameterLayout()  # two columns (the per-stage blocks of a 3-node OCP)
+    two.add("c", 3, 2)
+    c = np.arange(6.0).reshape(3, 2)
+    np.testing.assert_array_equal(two.unpack(two.pack({"c": c}), "c"), c)
     with pytest.raises(ValueError, match=r"missing: \['s'\], unknown: \[\]"):
         P.pack({"a": values["a"], "m": m})
     with pytest.raises(ValueError, match=r"missing: \[\], unknown: \['t'\]"):
@@ -381,9 +386,11 @@ def test_parameter_blocks_of_the_ocp(robot):
     [
         dict(n_nodes=4, n_tau_nodes=2),
         dict(n_nodes=4, n_tau_nodes=2, initial_state_variables=True, ee_force_input=True),
+        dict(n_nodes=3, n_tau_nodes=1),
         dict(n_nodes=3, n_tau_nodes=1, formulation="centroidal_velocity"),
+        dict(n_nodes=3, n_tau_nodes=1, formulation="forward_dynamics"),
     ],
-    ids=["parameters", "paper_layout", "centroidal_velocity"],
+    ids=["parameters", "paper_layout", "one_torque_node", "centroidal_velocity", "forward_dynamics"],
 )
 def test_stage_sizes_are_what_fatrop_detects(robot, settings):
     """``stage_sizes`` against Fatrop's own structure detection on the OCP, and the sizes add up to the
@@ -414,7 +421,8 @@ def test_split_needs_a_primal_vector_of_the_right_size_and_the_parameters(robot)
         ocp.split(w)
     values = {name: np.zeros(rows * cols) for name, (_, (rows, cols)) in ocp.params.blocks.items()}
     values |= {"q_hat": robot.q_nominal, "v_hat": np.arange(robot.nv, dtype=float)}
-    blocks = ocp.split(w.tolist(), ocp.params.pack(values))  # any array-like
+    blocks = ocp.split([0] * ocp.n_variables, ocp.params.pack(values))  # any array-like, read as floats
+    assert all(block.dtype == float for block in blocks.values())
     np.testing.assert_array_equal(blocks["dq"][0], 0.0)
     np.testing.assert_array_equal(blocks["v"][0], values["v_hat"])  # node 0: the measurement
     assert blocks["dq"].shape == blocks["v"].shape == (3, robot.nv)
