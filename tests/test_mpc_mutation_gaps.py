@@ -725,7 +725,8 @@ def test_the_reported_violation_is_that_of_the_returned_point(robot, monkeypatch
     mpc = _mpc(robot)
     q, v = robot.q_nominal, np.zeros(robot.nv)
     plan = mpc.solve(q, v, t=0.0)
-    assert plan.success and 0.0 <= plan.constraint_violation < 1e-3
+    assert plan.success and plan.status == "success" and plan.reason == ""  # no reason on a success
+    assert 0.0 <= plan.constraint_violation < 1e-3
     assert plan.constraint_violation == pytest.approx(
         _violation(mpc, plan.w, mpc.last_inputs["p"]), abs=1e-12
     )
