@@ -168,7 +168,16 @@ def _model(*joints, placement=None):
         (_model(pin.JointModelRX()), "needs a free-flyer root joint"),
         (_model(pin.JointModelRX(), pin.JointModelFreeFlyer()), "free-flyer joint 'j1' must be the root"),
         (_model(pin.JointModelFreeFlyer(), placement=pin.SE3.Random()), "'j0' must have an identity joint"),
-        (_model(pin.JointModelFreeFlyer(), pin.JointModelSpherical()), "'j1' has type JointModelSpherical"),
+        (
+            _model(
+                pin.JointModelFreeFlyer(), placement=pin.SE3(pin.utils.rotate("z", np.pi / 2), np.zeros(3))
+            ),
+            "'j0' must have an identity joint",
+        ),
+        (
+            _model(pin.JointModelFreeFlyer(), pin.JointModelSpherical()),
+            r"'j1' has type JointModelSpherical, which .* \(free flyer, revolute and prismatic joints only\)",
+        ),
         (pin.Model(), "needs a free-flyer root joint"),
     ],
 )
@@ -230,3 +239,188 @@ def test_clean_constant_snaps_rounding_noise_to_exact_zeros_and_ones():
         for k, M in [("raw", ca.SX(ca.DM(R))), ("clean", spatial.clean_constant(R))]
     }
     assert count["clean"] < count["raw"]
+
+
+def _every_joint_type_robot(seed):
+    """A free flyer and two branches with every supported joint type (the six axis-aligned ones, revolute
+    and prismatic unaligned), rotated joint placements and a contact frame at the end of each branch."""
+    pin.seed(seed)
+    rng = np.random.default_rng(seed)
+    model = pin.Model()
+    axis = rng.normal(size=(2, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    branches = (
+        [
+            pin.JointModelRX(),
+            pin.JointModelPY(),
+            pin.JointModelRZ(),
+            pin.JointModelPrismaticUnaligned(axis[0]),
+        ],
+        [
+            pin.JointModelPX(),
+            pin.JointModelRY(),
+            pin.JointModelPZ(),
+            pin.JointModelRevoluteUnaligned(axis[1]),
+        ],
+    )
+    root = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root")
+    model.appendBodyToJoint(root, pin.Inertia.Random(), pin.SE3.Identity())
+    frames = []
+    for b, joints in enumerate(branches):
+        parent = root
+        for k, joint in enumerate(joints):
+            parent = model.addJoint(parent, joint, pin.SE3.Random(), f"b{b}_{k}")
+            model.appendBodyToJoint(parent, pin.Inertia.Random(), pin.SE3.Identity())
+        frames.append(f"tip{b}")
+        model.addFrame(pin.Frame(frames[-1], parent, 0, pin.SE3.Random(), pin.FrameType.OP_FRAME))
+    model.lowerPositionLimit = -np.ones(model.nq)
+    model.upperPositionLimit = np.ones(model.nq)
+    model.gravity.linear = np.array([0.4, -0.3, -9.5])  # a tilted gravity: every axis of the base sees it
+    # Armature: none, exactly 1 (a value a "!= 0" test could be confused with) and random ones.
+    model.armature = np.resize([0.0, 1.0, 0.37, 1.0, 0.0, 0.12], model.nv)  # base DoFs, then the joints
+    return model, frames
+
+
+def test_every_joint_type_matches_pinocchio():
+    """Kinematics, RNEA, CRBA, both forward dynamics, the centroidal momentum and the mass of a tree with
+    every supported joint type (the B1 models and the synthetic tree have no PY joint) and an armature of
+    exactly 1 on some DoFs (the other armature tests draw it from (0.05, 0.5))."""
+    model, frames = _every_joint_type_robot(11)
+    data = model.createData()
+    smodel = cpin.SymbolicModel(model)
+    assert [info.kind for info in smodel.joints[1:]] == ["freeflyer"] + 2 * ["revolute", "prismatic"] + 2 * [
+        "prismatic",
+        "revolute",
+    ]
+    assert [info.axis for info in smodel.joints[2:]] == [0, 1, 2, None, 0, 1, 2, None]
+    assert smodel.total_mass == pytest.approx(pin.computeTotalMass(model), rel=1e-14)
+    q, v = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv)
+    kin = cpin.forward_kinematics(smodel, q, v)
+    placements = []
+    for name in frames:
+        R, p = cpin.frame_placement(kin, name)
+        placements += [ca.vec(R), p, cpin.frame_velocity(kin, name, cpin.LOCAL).vector()]
+    kinematics = ca.Function("kin", [q, v], [ca.vertcat(*placements, cpin.center_of_mass(kin))])
+    rnea = cpin.rnea_function(smodel, frames)
+    crba = ca.Function("crba", [q], [cpin.crba(smodel, q)])
+    aba = {m: cpin.aba_function(smodel, frames, m) for m in ("articulated", "crba")}
+    momentum = ca.Function("h", [q, v], [cpin.centroidal_momentum(smodel, q, v)])
+    rng = np.random.default_rng(12)
+    for _ in range(5):
+        q0, v0, a0 = random_state(model, rng)
+        F = rng.normal(scale=50.0, size=3 * len(frames))
+        pin.forwardKinematics(model, data, q0, v0)
+        pin.updateFramePlacements(model, data)
+        expected = []
+        for name in frames:
+            fid = model.getFrameId(name)
+            M = data.oMf[fid]
+            expected += [M.rotation.ravel(order="F"), M.translation]
+            expected.append(pin.getFrameVelocity(model, data, fid, pin.LOCAL).vector)
+        expected.append(pin.centerOfMass(model, data, q0))
+        assert_close(np.array(kinematics(q0, v0)).ravel(), np.concatenate(expected))
+        tau = pin.rnea(model, data, q0, v0, a0, pin_fext(model, data, q0, frames, F))
+        assert_close(np.array(rnea(q0, v0, a0, F)).ravel(), tau)
+        M = pin.crba(model, data, q0)
+        assert_close(np.array(crba(q0)), np.triu(M) + np.triu(M, 1).T)
+        for method, f in aba.items():
+            assert_close(np.array(f(q0, v0, tau, F)).ravel(), a0, rtol=1e-9 * np.abs(tau).max()), method
+        h = pin.computeCentroidalMomentum(model, data, q0, v0)
+        assert_close(np.array(momentum(q0, v0)).ravel(), np.r_[h.linear, h.angular])
+
+
+def test_a_single_free_body_matches_pinocchio():
+    """The smallest supported model, a free flyer alone (one rigid body, e.g. a payload): its
+    Newton-Euler equations with a point force, its inverse and its mass matrix."""
+    model = _model(pin.JointModelFreeFlyer())
+    model.addFrame(pin.Frame("corner", 1, 0, pin.SE3.Random(), pin.FrameType.OP_FRAME))
+    data = model.createData()
+    smodel = cpin.SymbolicModel(model)
+    q = ca.SX.sym("q", smodel.nq)
+    rnea = cpin.rnea_function(smodel, ["corner"])
+    crba = ca.Function("crba", [q], [cpin.crba(smodel, q)])
+    aba = {m: cpin.aba_function(smodel, ["corner"], m) for m in ("articulated", "crba")}
+    rng = np.random.default_rng(13)
+    for _ in range(3):
+        q0, v0, a0 = random_state(model, rng)
+        F = rng.normal(scale=10.0, size=3)
+        tau = pin.rnea(model, data, q0, v0, a0, pin_fext(model, data, q0, ["corner"], F))
+        assert_close(np.array(rnea(q0, v0, a0, F)).ravel(), tau)
+        assert_close(np.array(crba(q0)), pin.crba(model, data, q0))
+        for method, f in aba.items():
+            assert_close(np.array(f(q0, v0, tau, F)).ravel(), a0), method
+
+
+def test_a_second_free_flyer_is_refused():
+    """A second free-floating body (a sibling of the root) is not a legged robot's tree."""
+    model = _model(pin.JointModelFreeFlyer())
+    j = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "box")
+    model.appendBodyToJoint(j, pin.Inertia.Random(), pin.SE3.Identity())
+    with pytest.raises(ValueError, match="free-flyer joint 'box' must be the root joint"):
+        cpin.SymbolicModel(model)
+
+
+def test_dof_parents_are_pinocchios_and_ltdl_factorises_the_mass_matrix():
+    """``dof_parents`` is Featherstone's lambda (Pinocchio's ``parents_fromRow``), and ``ltdl`` factorises
+    a tree-structured M as ``L^T D L`` (unit lower triangular L, no fill-in) that ``ltdl_solve`` inverts."""
+    from wbmpc.cpin.aba import dof_parents, ltdl, ltdl_solve
+
+    rng = np.random.default_rng(14)
+    for model in (synthetic_robot(3).model, _every_joint_type_robot(15)[0], load_b1().model):
+        data = model.createData()
+        parents = dof_parents(cpin.SymbolicModel(model))
+        assert parents == list(data.parents_fromRow)
+        q0, _, _ = random_state(model, rng)
+        M = pin.crba(model, data, q0)
+        M = np.triu(M) + np.triu(M, 1).T
+        L_rows, D = ltdl([list(row) for row in M], parents)
+        n = model.nv
+        ancestors = [set() for _ in range(n)]
+        for k in range(n):
+            i = parents[k]
+            while i != -1:
+                ancestors[k].add(i)
+                i = parents[i]
+        L = np.eye(n)
+        for k in range(n):
+            for i in ancestors[k]:
+                L[k, i] = L_rows[k][i]
+            for i in set(range(k)) - ancestors[k]:
+                assert M[k, i] == 0.0 and L_rows[k][i] == 0.0  # not an ancestor: no fill-in
+        np.testing.assert_allclose(L.T @ np.diag(D) @ L, M, rtol=0, atol=1e-12 * np.abs(M).max())
+        b = rng.normal(size=n)
+        np.testing.assert_allclose(ltdl_solve(L_rows, D, parents, list(b)), np.linalg.solve(M, b), rtol=1e-9)
+
+
+def test_a_second_tree_attached_to_the_world_is_refused():
+    """A joint on the world next to the free flyer (e.g. a fixed-base arm in the same model) used to be
+    accepted, and RNEA and ABA then failed with an AttributeError (CRBA returned NaN)."""
+    model = _model(pin.JointModelFreeFlyer(), pin.JointModelRX())
+    j = model.addJoint(0, pin.JointModelRY(), pin.SE3.Random(), "world_arm")
+    model.appendBodyToJoint(j, pin.Inertia.Random(), pin.SE3.Identity())
+    with pytest.raises(ValueError, match="joint 'world_arm' is attached to the world"):
+        cpin.SymbolicModel(model)
+
+
+def test_aba_defaults_and_methods_of_aba_function():
+    """``aba`` without a method is the articulated-body algorithm (what the forward-dynamics formulation
+    calls); ``aba_function`` builds the method it is given, and is called "aba" by default."""
+    robot = load_b1()
+    model, data = robot.model, robot.model.createData()
+    smodel = cpin.SymbolicModel(model)
+    q, v, tau = ca.SX.sym("q", smodel.nq), ca.SX.sym("v", smodel.nv), ca.SX.sym("tau", smodel.nv)
+    default = ca.Function("default", [q, v, tau], [cpin.aba(smodel, q, v, tau)])
+    rng = np.random.default_rng(16)
+    q0, v0, a0 = random_state(model, rng)
+    tau0 = pin.rnea(model, data, q0, v0, a0)
+    assert_close(np.array(default(q0, v0, tau0)).ravel(), a0, rtol=1e-9 * np.abs(tau0).max())
+    assert default.n_instructions() == cpin.aba_function(smodel, []).n_instructions()
+    assert cpin.aba_function(smodel, robot.contact_frames).name() == "aba"
+    F = ca.SX.sym("F", 3 * len(robot.contact_frames))
+    forces = {frame: F[3 * i : 3 * i + 3] for i, frame in enumerate(robot.contact_frames)}
+    counts = {}
+    for method in ("articulated", "crba"):
+        direct = ca.Function("direct", [q, v, tau, F], [cpin.aba(smodel, q, v, tau, forces, method)])
+        counts[method] = cpin.aba_function(smodel, robot.contact_frames, method).n_instructions()
+        assert counts[method] == direct.n_instructions(), method
+    assert counts["articulated"] != counts["crba"]

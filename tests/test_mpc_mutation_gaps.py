@@ -360,3 +360,477 @@ def test_a_robot_without_an_arm_holds_too(monkeypatch):
     plan = mpc.solve(b1.q_nominal, np.zeros(b1.nv), t=0.0)
     assert plan.hold and plan.forces.shape[1] == 4
     assert plan.forces[0, :, 2].sum() == pytest.approx(b1.mass * b1.gravity)
+
+
+# --- the failed-solve rule: the retry's report, the counts, the flags (mutants of solve 53 to 297) ---------
+def _scripted(mpc, monkeypatch, outcomes):
+    """Replace every solver call by a scripted outcome ``(w or None, success, iterations, solve_time)``:
+    ``None`` is a solver that raised (no iterate, no count); exact binary times make the sums exact."""
+    calls = []
+
+    def run(solver, args):
+        w, success, iterations, solve_time = outcomes[len(calls)]
+        calls.append(args)
+        status = "success" if success else ("solver_exception" if w is None else "max_iter_exceeded")
+        report = {
+            "success": success,
+            "status": status,
+            "reason": "" if success else f"scripted {status}",
+            "iterations": iterations,
+            "solve_time": solve_time,
+            "constraint_violation": np.inf if w is None else 0.0,
+            "timings": {"wall": solve_time},
+        }
+        return w, None if w is None else np.zeros(mpc.ocp.n_constraints), report
+
+    monkeypatch.setattr(mpc, "_solver", lambda cold, max_iter=None: None)
+    monkeypatch.setattr(mpc, "_run_solver", run)
+    return calls
+
+
+@pytest.mark.parametrize(
+    "warm, retry, iterations",
+    [
+        ("iterate", "iterate", 7 + 9),  # both stop at their caps: the iterations add up
+        ("iterate", "raise", 7),  # the retry raised: the warm solve's count alone
+        ("raise", "iterate", 0),  # the retry stopped at once: 0 iterations ran (not "no count")
+        ("raise", "raise", -1),  # neither counted
+    ],
+)
+def test_a_failed_retry_reports_both_times_and_the_iterations_that_ran(
+    robot, monkeypatch, warm, retry, iterations
+):
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    assert first.success
+    iterate = first.w + 1.0
+    outcome = {
+        ("warm", "iterate"): (iterate, False, 7, 0.25),
+        ("warm", "raise"): (None, False, -1, 0.25),
+        ("retry", "iterate"): (iterate - 2.0, False, 0 if warm == "raise" else 9, 0.5),
+        ("retry", "raise"): (None, False, -1, 0.5),
+    }
+    calls = _scripted(mpc, monkeypatch, [outcome["warm", warm], outcome["retry", retry]])
+    second = mpc.solve(q, v, t=0.01)
+    assert len(calls) == 2
+    assert second.success is False and second.fallback is True and second.hold is False
+    assert second.solve_time == 0.75  # the warm solve's time and the retry's
+    assert second.iterations == iterations
+    assert second.reason.startswith("warm start: ") and "; cold retry: scripted " in second.reason
+    for name in PLAN:
+        np.testing.assert_array_equal(getattr(second, name), getattr(first, name), err_msg=name)
+    assert mpc.previous is first
+
+
+def test_a_converged_retry_is_the_new_plan_with_both_times(robot, monkeypatch):
+    """The warm solve stops at its cap, the cold retry converges: the retry's plan is applied (not the warm
+    iterate), becomes the warm start, and reports both solves' time and iterations."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    _scripted(mpc, monkeypatch, [(first.w + 1.0, False, 7, 0.25), (first.w, True, 5, 0.5)])
+    second = mpc.solve(q, v, t=0.01)
+    assert second.success and not second.fallback and second.reason == ""
+    assert second.solve_time == 0.75 and second.iterations == 12 and second.timings["cold_retry"] == 1.0
+    np.testing.assert_array_equal(second.w, first.w)
+    assert mpc.previous is second and mpc.stats["failures"] == 0 and mpc.stats["cold_retries"] == 1
+
+
+def test_every_failure_and_every_hold_is_counted(robot, monkeypatch):
+    """Two failed first solves are two holds and two failures; after a converged plan, two failed solves
+    are two fallbacks to it (and no hold)."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    with monkeypatch.context() as patch:
+        patch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+        for t in (0.0, 0.01):
+            plan = mpc.solve(q, v, t=t)
+            assert plan.hold and plan.t == t
+    assert mpc.stats["holds"] == 2 and mpc.stats["failures"] == 2 and mpc.stats["solves"] == 2
+    first = mpc.solve(q, v, t=0.02)
+    assert first.success and first.hold is False
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    for t in (0.03, 0.04):
+        plan = mpc.solve(q, v, t=t)
+        assert plan.fallback is True and plan.hold is False and plan.t == first.t
+    assert mpc.stats["holds"] == 2 and mpc.stats["failures"] == 4 and mpc.stats["solves"] == 5
+    assert mpc.stats["cold_retries"] == 2 and mpc.stats["exceptions"] == 2 + 2 + 2
+
+
+def test_the_total_time_is_the_time_of_the_call(robot):
+    """``timings["total"]`` is the whole call: at least the solver's share, at most the caller's clock."""
+    import time
+
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    for t in (0.0, 0.01):  # a cold start, a warm start
+        start = time.perf_counter()
+        plan = mpc.solve(q, v, t=t)
+        elapsed = time.perf_counter() - start
+        assert plan.success and 0.0 < plan.solve_time <= plan.timings["total"] <= elapsed
+
+
+def test_the_findings_are_those_of_the_gait_in_force(robot, monkeypatch):
+    """A speed command while a schedule stands, then trots: the plan carries the stand's
+    ``speed_without_stepping`` warning, and no speed finding once the trot is in force (its stride reaches
+    0.3 m/s); the hand held still in the world while the base walks is flagged in both."""
+    from wbmpc.ocp.gait import GaitSchedule
+
+    schedule = GaitSchedule([(make_gait("stand"), 0.4), (make_gait("trot"), 1.6)])
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=schedule, dt_max=0.03))
+    mpc.verbose = False
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    walk = Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0]))
+    both = {"speed_without_stepping", "ee_world_hold_with_walking_base"}
+    standing = mpc.solve(q, v, t=0.1, commands=walk)
+    assert {f.code for f in standing.findings} == both
+    assert any("'stand'" in f.message for f in standing.findings)
+    assert mpc.solve(q, v, t=0.1).findings == ()  # nothing commanded
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    failed = mpc.solve(q, v, t=0.12, commands=walk)  # a fallback carries this solve's findings
+    assert failed.fallback and not failed.hold and {f.code for f in failed.findings} == both
+    mpc.reset()
+    trotting = mpc.solve(q, v, t=0.9, commands=walk)  # a hold carries them too
+    assert trotting.hold and {f.code for f in trotting.findings} == {"ee_world_hold_with_walking_base"}
+
+
+def test_a_push_during_a_swing_aborts_it_in_the_solve(robot, monkeypatch):
+    """A trot, a lateral push just after lift-off (measured base velocity 0.6 m/s off the plan's): the swing
+    is aborted and the OCP plans that foot in stance (it is on the ground) until its nominal touchdown."""
+    mpc = _mpc(robot, gait="trot", n_nodes=6)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    assert mpc.solve(q, v, t=0.0).success
+    t = 0.02
+    swinging = ~mpc.config.gait.sample(np.array([t])).contact[:, 0]
+    assert swinging.sum() == 2
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    pushed = v.copy()
+    pushed[1] = 0.6
+    mpc.solve(q, pushed, t=t)
+    assert sorted(mpc.aborted_swings) == list(np.flatnonzero(swinging))
+    contact = mpc.ocp.params.unpack(mpc.last_inputs["p"], "contact")
+    assert np.all(contact[swinging] == 1.0)
+    # Unpushed, the same solve plans them in swing.
+    mpc.reset()
+    mpc.solve(q, v, t=t)
+    assert np.all(mpc.ocp.params.unpack(mpc.last_inputs["p"], "contact")[swinging, 0] == 0.0)
+
+
+# --- the static hold, the cold guess, a commanded base height (mutants of hold_plan, cold_guess,
+# pose_at_height, desired_configuration) -----------------------------------------------------------------
+def _assert_balanced(robot, q, forces, tau):
+    """Rest at ``q``: gravity = the joint torques and the contact forces (feet, and the hand if any)."""
+    model, data = robot.model, robot.model.createData()
+    g = pin.computeGeneralizedGravity(model, data, q).copy()
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    JtF = sum(
+        pin.getFrameJacobian(model, data, robot.frame_id(f), pin.LOCAL_WORLD_ALIGNED)[:3].T @ forces[i]
+        for i, f in enumerate(robot.contact_frames)
+    )
+    np.testing.assert_allclose(g - np.r_[np.zeros(6), tau] - JtF, 0.0, atol=1e-7)
+
+
+def _flight_gait():
+    """A bound whose swings overlap: all four feet in the air from 0.4 s to 0.48 s of each 0.8 s cycle."""
+    from wbmpc.ocp.gait import Gait
+
+    return Gait("flight", 0.8, 0.6, (0.0, 0.0, 0.5, 0.5), make_gait("trot").tick)
+
+
+def test_a_hold_without_a_report_is_the_documented_rest_plan(robot):
+    """``hold_plan`` called directly (no solver report): the measured pose on every node at rest, the
+    static torques on every torque node, the stage contact flags, and the report fields' defaults."""
+    mpc = _mpc(robot, gait="walk")
+    q = pin.integrate(robot.model, robot.q_nominal, 0.02 * np.sin(np.arange(robot.nv)))
+    params = mpc.parameters(q, np.zeros(robot.nv), 0.25, Commands(ee_force=np.array([0.0, 0.0, -20.0])))
+    plan = mpc.hold_plan(q, 0.25, params)
+    N = mpc.n_nodes
+    assert plan.t == 0.25 and plan.dts.shape == (N - 1,) and np.all(plan.dts == mpc.time_steps())
+    np.testing.assert_array_equal(plan.q, np.tile(q, (N, 1)))
+    np.testing.assert_array_equal(plan.v, np.zeros((N, robot.nv)))
+    np.testing.assert_array_equal(plan.a, np.zeros((N - 1, robot.nv)))
+    assert plan.forces.shape == (N - 1, len(robot.contact_frames), 3)
+    assert plan.tau.shape == (mpc.ocp.settings.n_tau_nodes, robot.nj)
+    for k in range(N - 1):
+        np.testing.assert_array_equal(plan.forces[k], plan.forces[0])
+    for k in range(len(plan.tau)):
+        np.testing.assert_array_equal(plan.tau[k], plan.tau[0])
+    np.testing.assert_array_equal(plan.contact, params["contact"] > 0.5)
+    assert plan.contact.dtype == bool and plan.contact.any() and not plan.contact.all()
+    assert plan.success is False and plan.fallback is True and plan.hold is True
+    assert plan.iterations == -1 and plan.solve_time == 0.0 and plan.status == "hold" and plan.reason == ""
+    assert plan.findings == () and plan.constraint_violation == np.inf and plan.timings == {}
+
+
+def test_a_hold_carries_the_whole_failed_report(robot, monkeypatch):
+    """A first solve that stops unconverged: the hold reports its iterations, time, status, reason,
+    violation, timings and this solve's findings (not the defaults)."""
+    mpc = _mpc(robot)
+    _scripted(mpc, monkeypatch, [(np.zeros(mpc.ocp.n_variables), False, 7, 0.25)])
+    walk = Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0]))  # standing: a speed finding
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0, commands=walk)
+    assert plan.hold and plan.success is False
+    assert plan.iterations == 7 and plan.solve_time == 0.25 and plan.status == "max_iter_exceeded"
+    assert plan.reason == "scripted max_iter_exceeded" and plan.constraint_violation == 0.0
+    assert plan.timings["wall"] == 0.25 and "total" in plan.timings
+    assert "speed_without_stepping" in {f.code for f in plan.findings}
+
+
+@pytest.mark.parametrize(
+    "t, carrying",
+    [
+        (0.25, [True, True, True, False]),  # rear-right in swing: the other three hold the pose alone
+        (0.05, [True] * 4),  # front-left in swing: rear-right would have to pull, all four hold it
+        (0.19, [True] * 4),  # as at 0.05 on stage 0; the next stage's three would hold: not used
+        (0.42, [True] * 4),  # a flight phase: no stance foot, all four hold it
+    ],
+)
+def test_the_hold_is_the_stance_of_the_first_stage_when_it_can_hold(robot, t, carrying):
+    """A walk (one foot in swing at a time) and a gait with a flight phase: the hold stands on the scheduled
+    stance of stage 0 when it balances the pose with pushing feet, otherwise on all four; it always
+    balances gravity and the commanded arm force, and no foot pulls."""
+    gait = _flight_gait() if t == 0.42 else make_gait("walk")
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=gait, dt_max=0.03))
+    q = robot.q_nominal
+    load = np.array([0.0, 0.0, -20.0])
+    params = mpc.parameters(q, np.zeros(robot.nv), t, Commands(ee_force=load))
+    plan = mpc.hold_plan(q, t, params)
+    if t == 0.19:
+        assert list(plan.contact[:, 1]) == [True, True, True, False]  # the next stage's stance differs
+    np.testing.assert_array_equal(np.abs(plan.forces[0, :4, 2]) > 1.0, carrying)
+    assert np.all(plan.forces[0, :4, 2] >= 0.0)
+    np.testing.assert_array_equal(plan.forces[0, 4], load)
+    _assert_balanced(robot, q, plan.forces[0], plan.tau[0])
+
+
+def test_the_cold_guess_of_a_robot_without_an_arm_is_feasible():
+    """The B1 alone: static forces and torques on its four feet (no arm force anywhere), every row met."""
+    from wbmpc.model.robot import load_b1
+
+    b1 = load_b1()
+    mpc = WholeBodyMPC(b1, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand"), dt_max=0.03))
+    q, v = b1.q_nominal, np.zeros(b1.nv)
+    params = mpc.parameters(q, v, 0.0, Commands())
+    x0 = mpc.cold_guess(q, v, params)
+    p = mpc.ocp.params.pack(params)
+    assert _violation(mpc, x0, p) < 1e-8
+    split = mpc.ocp.split(x0, p)
+    assert split["F"].shape[1] == 12
+    np.testing.assert_allclose(split["F"][:, 2::3].sum(axis=1), b1.mass * b1.gravity)
+
+
+def test_the_cold_guess_of_a_flight_phase_has_no_foot_force(robot):
+    """Nodes with no stance foot get zero foot forces and zero torques (no static solution); the other nodes
+    are static (the static-equilibrium forces of their stance with the arm's load)."""
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=_flight_gait(), dt_max=0.03))
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    load = np.array([2.0, 0.0, -10.0])
+    params = mpc.parameters(q, v, 0.39, Commands(ee_force=load))
+    flight = ~params["contact"].astype(bool).any(axis=0)
+    assert flight.any() and not flight.all()
+    split = mpc.ocp.split(mpc.cold_guess(q, v, params), mpc.ocp.params.pack(params))
+    F = split["F"].reshape(mpc.n_nodes - 1, -1, 3)
+    np.testing.assert_array_equal(F[flight, :4], 0.0)
+    from wbmpc.model.statics import static_equilibrium
+
+    for k in np.flatnonzero(~flight):
+        stance = params["contact"][:, k] > 0.5
+        np.testing.assert_allclose(
+            F[k], static_equilibrium(robot, q, stance, ee_force=load).forces, atol=1e-9
+        )
+    tau = split["tau"]
+    np.testing.assert_array_equal(tau[flight[: len(tau)]], 0.0)
+
+
+def _feet(robot, q):
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, q)
+    return np.array([data.oMf[robot.frame_id(f)].translation for f in robot.foot_frames])
+
+
+def test_a_commanded_base_height_keeps_the_feet_where_the_nominal_pose_has_them(robot):
+    """``pose_at_height``: the base at the height (same x, y, orientation), the leg joints that keep every
+    foot at its nominal position, the arm's joints unchanged, within the joint limits; one pose per 0.1 mm."""
+    mpc = _mpc(robot)
+    nominal = robot.q_nominal
+    arm = [robot.joint_index_v(n) + 1 for n in robot.arm_joint_names]  # q index of a revolute joint
+    legs = np.setdiff1d(np.arange(7, robot.nq), arm)
+    lower, upper = robot.model.lowerPositionLimit, robot.model.upperPositionLimit
+    for height in (round(nominal[2] - 0.08, 4), round(nominal[2] + 0.05, 4)):  # on the 0.1 mm grid
+        q = mpc.pose_at_height(height)
+        assert q[2] == height
+        np.testing.assert_array_equal(q[[0, 1]], nominal[[0, 1]])
+        np.testing.assert_allclose(q[3:7], nominal[3:7], atol=1e-12)
+        np.testing.assert_array_equal(q[arm], nominal[arm])
+        np.testing.assert_allclose(_feet(robot, q), _feet(robot, nominal), atol=1e-8)
+        assert np.abs(q[legs] - nominal[legs]).max() > 1e-3
+        # The same legs within the same 0.1 mm (the feet within 0.05 mm), the base where asked; a copy.
+        near = mpc.pose_at_height(height + 3e-5)
+        np.testing.assert_array_equal(near[legs], q[legs])
+        assert near[2] == height + 3e-5
+        np.testing.assert_allclose(_feet(robot, near)[:, 2], _feet(robot, nominal)[:, 2] + 3e-5, atol=1e-8)
+        q[:] = 0.0
+        assert mpc.pose_at_height(height)[2] == height
+    # Beyond the legs' range the knees stop at their limits (low: lower, high: upper).
+    for height in (0.2, 0.75):
+        q = mpc.pose_at_height(height)
+        assert np.all(q[7:] >= lower[7:]) and np.all(q[7:] <= upper[7:])
+
+
+def test_the_desired_pose_of_a_height_command(robot):
+    """A base height command: the desired configuration is the height's pose at the measured x, y and
+    heading (level), and the posture cost's target ``dq_des`` leads there."""
+    mpc = _mpc(robot)
+    q = robot.q_nominal.copy()
+    q[:2] = (1.2, -0.7)
+    q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.1, -0.05, 0.6)).coeffs()
+    height = robot.q_nominal[2] - 0.06
+    params = mpc.parameters(q, np.zeros(robot.nv), 0.0, Commands(base_height=height))
+    q_des = pin.integrate(robot.model, q, params["dq_des"])
+    expected = mpc.pose_at_height(height)
+    np.testing.assert_allclose(q_des[:3], [1.2, -0.7, height], atol=1e-12)
+    R = pin.Quaternion(q_des[3:7]).normalized().toRotationMatrix()
+    np.testing.assert_allclose(R, pin.rpy.rpyToMatrix(0.0, 0.0, 0.6), atol=1e-12)
+    np.testing.assert_allclose(q_des[7:], expected[7:], atol=1e-12)
+    assert np.abs(expected[7:] - robot.q_nominal[7:]).max() > 1e-3
+
+
+# --- one solver call's report (mutants of _run_solver) ------------------------------------------------------
+class _Returns:
+    """A solver stand-in that returns ``w`` and ``g`` with the given statistics."""
+
+    def __init__(self, w, g, stats):
+        self.w, self.g, self._stats = w, g, stats
+
+    def __call__(self, **args):
+        return {"x": self.w.copy(), "g": self.g.copy(), "lam_g": np.zeros(self.g.size), "f": 0.0}
+
+    def stats(self):
+        return dict(self._stats)
+
+
+CONVERGED = {
+    "success": True,
+    "return_status": 0,
+    "iter_count": 4,
+    "fatrop": {"return_flag": 0, "iterations_count": 4, "time_total": 1e-3},
+}
+
+
+def test_the_reported_violation_is_that_of_the_returned_point(robot, monkeypatch):
+    """A converged plan reports the bound violation of its own constraint values; a returned point half a
+    unit under a lower bound or a quarter over an upper one reports that."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    plan = mpc.solve(q, v, t=0.0)
+    assert plan.success and plan.status == "success" and plan.reason == ""  # no reason on a success
+    assert 0.0 <= plan.constraint_violation < 1e-3
+    assert plan.constraint_violation == pytest.approx(
+        _violation(mpc, plan.w, mpc.last_inputs["p"]), abs=1e-12
+    )
+    lbg, ubg = mpc.ocp.lbg, mpc.ocp.ubg
+    inequality = np.flatnonzero(np.isfinite(lbg) & np.isfinite(ubg) & (lbg < ubg))
+    lower_only = np.flatnonzero(np.isfinite(lbg) & ~np.isfinite(ubg))
+    assert inequality.size and lower_only.size
+    for row, g_row, expected in (
+        (lower_only[0], lbg[lower_only[0]] - 0.5, 0.5),
+        (inequality[0], ubg[inequality[0]] + 0.25, 0.25),
+        (inequality[0], lbg[inequality[0]] - 0.125, 0.125),
+    ):
+        g = np.clip(np.zeros(lbg.size), lbg, ubg)
+        g[row] = g_row
+        fake = _Returns(plan.w, g, {**CONVERGED, "success": False, "fatrop": {"return_flag": 1}})
+        monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None, fake=fake: fake)
+        w, lam_g, report = mpc._run_solver(fake, mpc.last_inputs)
+        assert report["constraint_violation"] == pytest.approx(expected, abs=1e-12)
+        assert report["success"] is False and report["status"] == "max_iter_exceeded"
+
+
+def test_a_non_finite_iterate_is_never_a_success(robot, monkeypatch):
+    """The solver says it converged but returns a NaN: not a success, said so; the previous plan is kept."""
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    first = mpc.solve(q, v, t=0.0)
+    w = first.w.copy()
+    w[3] = np.nan
+    fake = _Returns(w, np.zeros(mpc.ocp.n_constraints), CONVERGED)
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: fake)
+    second = mpc.solve(q, v, t=0.01)
+    assert second.success is False and second.fallback and mpc.previous is first
+    assert second.status == "non_finite_solution" and second.reason.endswith(
+        "cold retry: the solver returned NaN or inf"
+    )
+    _, _, report = mpc._run_solver(fake, mpc.last_inputs)
+    assert report["status"] == "non_finite_solution" and report["reason"] == "the solver returned NaN or inf"
+    assert report["iterations"] == 4 and report["success"] is False
+
+
+def test_statistics_without_success_or_count_are_a_failure_without_count(robot, monkeypatch):
+    """A solver whose statistics say neither success nor an iteration count: a failure (the hold), -1."""
+    mpc = _mpc(robot)
+    fake = _Returns(np.zeros(mpc.ocp.n_variables), np.zeros(mpc.ocp.n_constraints), {})
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: fake)
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    assert plan.hold and plan.success is False and plan.iterations == -1 and plan.reason != ""
+
+
+def test_a_raising_solver_reports_no_count_no_point_and_its_time(robot, monkeypatch):
+    """A raising solver: no iteration count (-1), no point (infinite violation), its wall time within the
+    call's; each raise is counted."""
+    import time
+
+    mpc = _mpc(robot)
+    monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
+    for n in (1, 2):
+        start = time.perf_counter()
+        plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+        elapsed = time.perf_counter() - start
+        assert plan.hold and plan.iterations == -1 and plan.constraint_violation == np.inf
+        assert plan.status == "solver_exception" and mpc.stats["exceptions"] == n
+        assert 0.0 < plan.solve_time == plan.timings["wall"] <= plan.timings["total"] <= elapsed
+
+
+def test_solver_timings_split_the_wall_time():
+    """Where a solve's time went: the derivative evaluations (every ``t_wall_nlp_*``), the solver's own
+    work (its total minus them), the Python overhead (the wall time minus its total); Fatrop's total and
+    split when it reports them, else CasADi's total, else the wall time."""
+    from wbmpc.control.mpc import solver_timings
+
+    evaluations = {
+        "t_wall_nlp_f": 0.0625,
+        "t_wall_nlp_hess_l": 0.125,
+        "t_wall_nlp_jac_g": 0.25,
+        "t_proc_x": 8.0,
+    }
+    fatrop = {"time_total": 1.0, "compute_sd_time": 0.375, "initialization_time": 0.03125}
+    cases = [
+        (
+            {**evaluations, "t_wall_total": 4.0, "fatrop": fatrop},
+            1.0,
+            {"search_direction": 0.375, "initialization": 0.03125},
+        ),
+        (
+            {**evaluations, "t_wall_total": 4.0, "fatrop": {"time_total": 1.0}},
+            1.0,
+            {"search_direction": 0.0, "initialization": 0.0},
+        ),
+        ({**evaluations, "t_wall_total": 4.0}, 4.0, {}),  # IPOPT: CasADi's total
+        ({**evaluations, "t_wall_total": 4.0, "fatrop": "n/a"}, 4.0, {}),
+        (dict(evaluations), 2.0, {}),  # no total at all: the wall time
+        ({}, 2.0, {"evaluations": 0.0, "hessian": 0.0, "jacobian": 0.0}),
+    ]
+    for stats, total, extra in cases:
+        expected = {
+            "wall": 2.0,
+            "evaluations": 0.4375,
+            "hessian": 0.125,
+            "jacobian": 0.25,
+            "solver": total - 0.4375,
+            "overhead": 2.0 - total,
+        }
+        expected.update(extra)
+        if not stats:
+            expected["solver"] = total
+        assert solver_timings(stats, 2.0) == expected, stats

@@ -57,7 +57,8 @@ class SymbolicModel:
             the diagonal of the joint-space inertia matrix, as Pinocchio's RNEA, CRBA and ABA add it.
 
     Raises:
-        ValueError: if the root is not a free flyer or a joint type is not supported.
+        ValueError: if the root is not a free flyer, another joint is attached to the world or a joint
+            type is not supported.
     """
 
     def __init__(self, model: pin.Model):
@@ -70,6 +71,12 @@ class SymbolicModel:
             self.joints.append(self._joint_info(model, j))
         if model.njoints < 2 or self.joints[1].kind != "freeflyer":
             raise ValueError("the symbolic model needs a free-flyer root joint (joint 1)")
+        for info in self.joints[2:]:
+            if info.parent == 0:  # a second tree: the algorithms start every branch at the free flyer
+                raise ValueError(
+                    f"joint {info.name!r} is attached to the world: the symbolic model needs a single tree "
+                    "under the free-flyer root"
+                )
         self.total_mass = float(sum(inertia.mass for inertia in model.inertias))
 
     @staticmethod

@@ -280,8 +280,11 @@ class OCP:
 
         self.params = P
         self.stages = infos
-        x0 = self.initial_state_value(stages[0], p)
-        self.initial_state_function = ca.Function("x0", [P.vector], [x0], ["p"], ["x0"])
+        # Node 0's state as an expression of the parameters where it is one (else rows pin it: any form).
+        x0, self.initial_state_function = None, None
+        if self.initial_state_is_parameter:
+            x0 = self.initial_state_value(stages[0], p)
+            self.initial_state_function = ca.Function("x0", [P.vector], [x0], ["p"], ["x0"])
         self.plan_function = self._plan_function(stages, P, dts, x0)
         self.dts_function = ca.Function("dts", [p["dt_min"], p["dt_max"]], [ca.vertcat(*dts)])
         self.nlp = {"x": ca.vertcat(*x_parts), "p": P.vector, "f": cost, "g": ca.vertcat(*g_parts)}
