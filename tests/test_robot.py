@@ -131,10 +131,10 @@ def test_default_robots_inertials(urdf_name):
     under 1e-5 of the trunk's inertia that the check accepts as negligible."""
     import xml.etree.ElementTree as ET
 
-    from wbmpc.model.robot import _inertia_defect, _read_inertials
+    from wbmpc.model.inertials import _inertia_defect, read_inertials
 
     urdf = URDF.parent / urdf_name
-    inertials = _read_inertials(urdf, ET.parse(urdf).getroot())
+    inertials = read_inertials(urdf, ET.parse(urdf).getroot())
     defects = {name: _inertia_defect(i.inertia) for name, i in inertials.items()}
     assert {name for name, defect in defects.items() if defect} == {"base"}
     assert "not all positive" in defects["base"] and inertials["base"].mass == 1e-6
