@@ -7,6 +7,7 @@ usable everywhere. The edges are read from the source (every ``import``, lazy on
 """
 
 import ast
+import re
 import subprocess
 import sys
 import textwrap
@@ -112,3 +113,23 @@ def test_the_log_format_imports_nothing_heavy():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["[]", "False"], out.stdout
+
+
+def test_the_readme_module_table_matches_the_tree():
+    """Every module and subpackage of each ``wbmpc/<subpackage>/`` is named in the README's table, and
+    every file the table names exists (a module added, moved or removed shows here)."""
+    readme = (PACKAGE.parent / "README.md").read_text()
+    rows = re.findall(r"^\| `wbmpc/(\w+)/` \| (.*?) \|", readme, flags=re.M)
+    assert rows, "no module table in the README"
+    tabled = {name for name, _ in rows}
+    packages = {p.parent.name for p in PACKAGE.glob("*/__init__.py")}
+    assert tabled == packages, f"README table rows {sorted(tabled)} != subpackages {sorted(packages)}"
+    for name, cell in rows:
+        listed = set(re.findall(r"`([\w/.]+)`", cell))
+        folder = PACKAGE / name
+        present = {p.name for p in folder.glob("*.py") if p.name != "__init__.py"}
+        present |= {f"{p.parent.name}/" for p in folder.glob("*/__init__.py")}
+        missing = present - listed
+        assert not missing, f"wbmpc/{name}/: {sorted(missing)} not in the README's table"
+        for item in listed:
+            assert next(folder.rglob(item.rstrip("/")), None) is not None, f"README names wbmpc/{name}/{item}"

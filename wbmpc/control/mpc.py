@@ -54,6 +54,12 @@ REFUSED_FINDINGS = ("ee_force_lifts_robot", "arm_command_without_arm")
 class WholeBodyMPC:
     """Whole-body inverse-dynamics MPC (build once, solve many times).
 
+    One class on purpose (about 490 lines): the solve's parts (parameters from the commands, warm and cold
+    guesses, the solver calls with the cold retry, the failed-solve rule, the static hold) share the last
+    converged plan and the statistics, and the failed-solve rule is only checkable as a whole; push recovery
+    (:mod:`wbmpc.control.push_recovery`) and the prechecks (:mod:`wbmpc.control.prechecks`) are objects of
+    their own.
+
     Args:
         robot: The robot.
         settings: Structural OCP settings (nodes, torque nodes, formulation).

@@ -170,6 +170,10 @@ class StageInfo:
 class OCP:
     """The whole-body MPC problem as a CasADi NLP with stage-interleaved variables.
 
+    One class on purpose (about 400 lines): the variable layout, the parameter blocks, the rows of every
+    stage and their bounds are built together and indexed into each other; the dynamics formulations are
+    the small objects plugged in (:mod:`wbmpc.ocp.formulations`).
+
     Args:
         robot: The robot (foot frames, arm end effector, limits).
         settings: Structural settings.

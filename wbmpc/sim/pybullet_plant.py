@@ -74,6 +74,10 @@ __all__ = ["Box", "Payload", "PyBulletPlant", "Wall"]
 class PyBulletPlant(SceneBodies, ContactReadings, Plant):
     """The robot in PyBullet, with the :class:`~wbmpc.sim.plant.ContactPlant` interface.
 
+    The scene bodies and the contact readings are mixins of their own modules; what stays here (about 450
+    lines) is one PyBullet body's set-up, its state conversion to Pinocchio's conventions, the step, frame
+    placements and kicks, which all share the link maps and inertial-frame offsets built at set-up.
+
     Args:
         robot: The robot (its URDF, locked joints, joint order, foot and end-effector frames are used).
         dt: Simulation step [s].
