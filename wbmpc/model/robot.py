@@ -311,8 +311,8 @@ def load_robot(
     * the root link needs a positive mass of its own: PyBullet welds a root link of zero mass to the world;
     * a non-zero inertia tensor must be positive definite and satisfy the triangle inequalities of its
       principal moments (I1 + I2 >= I3 and permutations), else PyBullet replaces it with zero. A tensor
-      at most :data:`wbmpc.model.inertials.NEGLIGIBLE_INERTIA_RATIO` of the rigid body it belongs to (the links joined by fixed or
-      locked joints) is accepted as a negligible placeholder;
+      at most :data:`wbmpc.model.inertials.NEGLIGIBLE_INERTIA_RATIO` of the rigid body it belongs to (the
+      links joined by fixed or locked joints) is accepted as a negligible placeholder;
     * every rigid body that moves (the floating base, and each movable joint's links with the links fixed
       to them) needs a positive mass and a positive-definite rotational inertia, else its dynamics are
       singular.
