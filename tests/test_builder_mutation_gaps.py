@@ -352,6 +352,8 @@ def test_parameter_layout_packs_column_major_and_unpacks():
     for bad in (np.nan, np.inf, -np.inf):
         with pytest.raises(ValueError, match="'s' contains NaN or inf"):
             P.pack(values | {"s": bad})
+    with pytest.raises(ValueError):  # not a number: a ValueError too, as every bad input of the package
+        P.pack(values | {"s": "fast"})
 
 
 def test_parameter_blocks_of_the_ocp(robot):
@@ -557,9 +559,11 @@ def test_initial_state_rows_that_are_not_x_minus_c_are_refused(robot, monkeypatc
     from wbmpc.ocp.formulations import InverseDynamics
 
     monkeypatch.setattr(InverseDynamics, "initial_state", getattr(_Scaled, rows))
-    with pytest.raises(
-        ValueError, match="'inverse_dynamics': initial_state\\(\\) must return x_0 - c\\(p\\)"
-    ):
+    message = (
+        r"'inverse_dynamics': initial_state\(\) must return x_0 - c\(p\) to enter node 0's state as a "
+        r"parameter; use OCPSettings\(initial_state_variables=True\)$"
+    )
+    with pytest.raises(ValueError, match=message):
         OCP(robot, OCPSettings(n_nodes=3, n_tau_nodes=1))
     OCP(robot, OCPSettings(n_nodes=3, n_tau_nodes=1, initial_state_variables=True))  # pinned by rows: fine
 
@@ -583,3 +587,8 @@ def test_initial_state_value_is_the_measured_state(robot):
         values |= {"q_hat": q_hat, "v_hat": v_hat}
         x0 = np.asarray(ocp.initial_state_function(ocp.params.pack(values))).ravel()
         np.testing.assert_allclose(x0, expected, rtol=1e-10, atol=1e-12)
+        # of a stage without inputs too (the OCP calls it on node 0, which has them)
+        p = ocp.params.symbols
+        st = ocp.formulation.stage("t", p["q_hat"], has_input=False, torque_limited=False)
+        x0 = ca.Function("x0", [ocp.params.vector], [ocp.initial_state_value(st, p)])(ocp.params.pack(values))
+        np.testing.assert_allclose(np.asarray(x0).ravel(), expected, rtol=1e-10, atol=1e-12)
