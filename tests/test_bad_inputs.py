@@ -10,7 +10,7 @@ import pytest
 from wbmpc import checks
 from wbmpc.control.arm_task import ArmReference
 from wbmpc.control.low_level import LowLevelController
-from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import Commands, MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.estimation import EstimatorNoise, StateEstimator
 from wbmpc.estimation.filters import LowPassFilter
 from wbmpc.io.rosbag import TopicMap
@@ -32,17 +32,9 @@ MPC_CONFIGS = [
     ({"dt_max": 10.0}, "dt_max = 10.0 s is outside"),
     ({"dt_min": 0.05, "dt_max": 0.02}, "dt_max (0.02) must be >= dt_min"),
     ({"mu": -0.5}, "mu must be a positive number"),
-    ({"tol": float("nan")}, "tol must be a positive number"),
-    ({"mu_init_cold": 0.0}, "mu_init_cold must be a positive number"),
-    ({"max_iter": 0}, "max_iter must be an integer >= 1"),
-    ({"max_iter": 2.5}, "max_iter must be an integer >= 1"),
-    ({"cold_max_iter": -1}, "cold_max_iter must be an integer >= 1"),
-    ({"retry_max_iter": True}, "retry_max_iter must be an integer >= 1"),
     ({"Q": -np.ones(44)}, "Q must be a 1-D array of finite weights >= 0"),
     ({"R": np.full(10, np.nan)}, "R must be a 1-D array of finite weights >= 0"),
     ({"front_force_ratio": 1.5}, "front_force_ratio must be in [0, 1]"),
-    ({"solver": "snopt"}, "unknown solver 'snopt'"),
-    ({"solver": "ipopt", "compiled": True}, "compiled needs solver='fatrop'"),
     ({"gait": "trot"}, "gait must be a Gait or GaitSchedule"),
     ({"kick_recovery": -0.3}, "kick_recovery must be a positive number"),
     ({"kick_recovery_phase": 0.0}, "kick_recovery_phase must be a positive number"),
@@ -57,6 +49,39 @@ def test_mpc_config(kwargs, message):
     with pytest.raises(ValueError) as err:
         MPCConfig(**kwargs)
     assert message in str(err.value)
+
+
+SOLVER_SETTINGS = [
+    ({"tol": float("nan")}, "SolverSettings.tol must be a positive number"),
+    ({"tol": True}, "SolverSettings.tol must be a positive number"),
+    ({"mu_init_cold": 0.0}, "SolverSettings.mu_init_cold must be a positive number"),
+    ({"max_iter": 0}, "SolverSettings.max_iter must be an integer >= 1"),
+    ({"max_iter": 2.5}, "SolverSettings.max_iter must be an integer >= 1"),
+    ({"cold_max_iter": -1}, "SolverSettings.cold_max_iter must be an integer >= 1"),
+    ({"retry_max_iter": True}, "SolverSettings.retry_max_iter must be an integer >= 1"),
+    ({"solver": "snopt"}, "unknown solver 'snopt'"),
+    ({"solver": "ipopt", "compiled": True}, "compiled needs solver='fatrop'"),
+]
+
+
+@pytest.mark.parametrize("kwargs, message", SOLVER_SETTINGS, ids=[m for _, m in SOLVER_SETTINGS])
+def test_solver_settings(kwargs, message):
+    with pytest.raises(ValueError) as err:
+        SolverSettings(**kwargs)
+    assert message in str(err.value)
+
+
+def test_solver_settings_are_fixed_and_the_mpc_refuses_others():
+    """Build-time settings cannot change under a built MPC (frozen), and a wrong type is named."""
+    import dataclasses
+
+    settings = SolverSettings(max_iter=7)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        settings.max_iter = 8
+    with pytest.raises(ValueError, match="solver must be a SolverSettings"):
+        WholeBodyMPC(_b1z1(), OCPSettings(n_nodes=4), MPCConfig(), {"max_iter": 7})
+    with pytest.raises(TypeError):
+        MPCConfig(max_iter=7)  # not a runtime field any more
 
 
 @pytest.mark.parametrize(
@@ -577,16 +602,16 @@ CATALOGUE = [
     (
         "unclear",
         "compile_flags a string",
-        lambda: MPCConfig(compile_flags="-O2"),
+        lambda: SolverSettings(compile_flags="-O2"),
         C,
-        "MPCConfig.compile_flags must be a list",
+        "SolverSettings.compile_flags must be a list",
     ),
     (
         "named",
         "mu_init_warm NaN",
-        lambda: MPCConfig(mu_init_warm=NAN),
+        lambda: SolverSettings(mu_init_warm=NAN),
         C,
-        "MPCConfig.mu_init_warm must be a positive number",
+        "SolverSettings.mu_init_warm must be a positive number",
     ),
     ("named", "dt_max inf", lambda: MPCConfig(dt_max=INF), C, "MPCConfig.dt_max must be a positive number"),
     (

@@ -11,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import (
     B1_Z1_EE_FRAME,
     B1_Z1_LOCKED_JOINTS,
@@ -100,8 +100,8 @@ def _solve_in_process_and_compiled(robot, cache, monkeypatch):
     monkeypatch.setenv("WBMPC_CACHE_DIR", str(cache))
     plans = []
     for compiled in (False, True):
-        config = MPCConfig(gait=make_gait("stand"), compiled=compiled, compile_flags=FLAGS, dt_max=0.02)
-        mpc = WholeBodyMPC(robot, SMALL, config)
+        config = MPCConfig(gait=make_gait("stand"), dt_max=0.02)
+        mpc = WholeBodyMPC(robot, SMALL, config, SolverSettings(compiled=compiled, compile_flags=FLAGS))
         mpc.verbose = False
         plans.append(mpc.solve(robot.q_nominal, np.zeros(robot.nv)))
     in_process, compiled = plans
@@ -136,7 +136,7 @@ def test_cache_reuses_rebuilds_on_change_and_survives_truncation(small_ocp, tmp_
 
 def test_compiled_needs_fatrop():
     with pytest.raises(ValueError, match="compiled needs solver='fatrop'"):
-        MPCConfig(solver="ipopt", compiled=True)
+        SolverSettings(solver="ipopt", compiled=True)
 
 
 # --- the cache key covers the numeric model -----------------------------------------------------------------

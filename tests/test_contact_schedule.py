@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from conftest import forward_progress
 
-from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import Commands, MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCPSettings
@@ -247,7 +247,10 @@ def test_stand_trot_stand_transitions_on_mpc_ticks(robot):
 def test_a_failed_first_solve_returns_the_static_hold(robot):
     """An unconverged first iterate is never the plan: the static hold is, and it is not a warm start."""
     mpc = WholeBodyMPC(
-        robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04, cold_max_iter=1)
+        robot,
+        OCPSettings(n_nodes=6),
+        MPCConfig(gait=make_gait("stand"), dt_max=0.04),
+        SolverSettings(cold_max_iter=1),
     )
     q = robot.q_nominal
     plan = mpc.solve(q, np.zeros(robot.nv), t=0.0)

@@ -5,7 +5,7 @@ import subprocess
 
 import numpy as np
 
-from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import load_b1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
@@ -15,8 +15,9 @@ from wbmpc.solver import deploy
 def test_c_program_matches_python(shared_cache, tmp_path, monkeypatch):
     monkeypatch.setenv("WBMPC_CACHE_DIR", str(shared_cache))
     robot = load_b1()
-    config = MPCConfig(gait=make_gait("stand"), compiled=True, compile_flags=("-O0",), dt_max=0.02)
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=3, n_tau_nodes=1), config)
+    config = MPCConfig(gait=make_gait("stand"), dt_max=0.02)
+    solver = SolverSettings(compiled=True, compile_flags=("-O0",))
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=3, n_tau_nodes=1), config, solver)
     mpc.verbose = False
     q, v = robot.q_nominal, np.zeros(robot.nv)
     q[2] += 0.01  # not exactly the nominal pose: a non-trivial solve
@@ -89,8 +90,9 @@ def test_the_default_export_is_the_warm_start_solver(shared_cache, tmp_path, mon
     cold-start export (other barrier and bound settings) lands elsewhere within the tolerance."""
     monkeypatch.setenv("WBMPC_CACHE_DIR", str(shared_cache))
     robot = load_b1()
-    config = MPCConfig(gait=make_gait("stand"), compiled=True, compile_flags=("-O0",), dt_max=0.02)
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=3, n_tau_nodes=1), config)
+    config = MPCConfig(gait=make_gait("stand"), dt_max=0.02)
+    solver = SolverSettings(compiled=True, compile_flags=("-O0",))
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=3, n_tau_nodes=1), config, solver)
     mpc.verbose = False
     q, v = robot.q_nominal, np.zeros(robot.nv)
     q[2] += 0.01

@@ -1,12 +1,14 @@
 """The whole-body inverse-dynamics MPC: structure, convergence, physics of the solution, robustness."""
 
+import dataclasses
+
 import casadi as ca
 import numpy as np
 import pinocchio as pin
 import pytest
 from conftest import forward_progress
 
-from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import Commands, MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.quaternion import tilt
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCP, OCPSettings
@@ -138,7 +140,9 @@ def test_trot_plan_has_zero_force_on_swing_feet(robot):
 
 def test_ipopt_agrees_with_fatrop(robot, standing):
     _, fatrop_plan = standing
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand"), solver="ipopt"))
+    mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand")), SolverSettings(solver="ipopt")
+    )
     plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
     assert plan.success, plan.status
     np.testing.assert_allclose(plan.forces[0], fatrop_plan.forces[0], atol=2.0)
@@ -215,8 +219,10 @@ PLAN_ARRAYS = ("q", "v", "a", "forces", "tau", "w", "lam_g")
 
 
 def _standing_mpc(robot, **config):
+    fields = {f.name for f in dataclasses.fields(SolverSettings)}
+    solver = SolverSettings(**{k: config.pop(k) for k in list(config) if k in fields})
     mpc = WholeBodyMPC(
-        robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04, **config)
+        robot, OCPSettings(n_nodes=6), MPCConfig(gait=make_gait("stand"), dt_max=0.04, **config), solver
     )
     mpc.verbose = False
     return mpc
@@ -337,7 +343,7 @@ def test_closed_loop_trot_stays_upright(robot):
         (lambda r: make_gait("gallop"), "gallop"),
         (lambda r: MPCConfig(dt_min=0.0), "dt_min"),
         (lambda r: MPCConfig(dt_min=0.05, dt_max=0.01), "dt_max"),
-        (lambda r: MPCConfig(solver="snopt"), "snopt"),
+        (lambda r: SolverSettings(solver="snopt"), "snopt"),
         (lambda r: Commands(ee_velocity=np.zeros(2)).validated(), "ee_velocity"),
         (lambda r: Commands(ee_force=np.array([0.0, np.nan, 0.0])).validated(), "ee_force"),
         (lambda r: OCPSettings(n_nodes=2), "n_nodes"),

@@ -7,12 +7,14 @@ the previous plan's configurations at their times, the force targets carry the w
 command is the commanded world velocity in the base frame.
 """
 
+import dataclasses
+
 import casadi as ca
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control.mpc import Commands, MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import Commands, MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import make_gait
@@ -26,8 +28,11 @@ def robot():
 
 
 def _mpc(robot, gait="stand", n_nodes=4, **config):
+    """A small MPC; ``config``: MPCConfig fields and SolverSettings fields (told apart by name)."""
+    fields = {f.name for f in dataclasses.fields(SolverSettings)}
+    solver = SolverSettings(**{k: config.pop(k) for k in list(config) if k in fields})
     mpc = WholeBodyMPC(
-        robot, OCPSettings(n_nodes=n_nodes), MPCConfig(gait=make_gait(gait), dt_max=0.03, **config)
+        robot, OCPSettings(n_nodes=n_nodes), MPCConfig(gait=make_gait(gait), dt_max=0.03, **config), solver
     )
     mpc.verbose = False
     return mpc
@@ -235,7 +240,7 @@ def test_the_start_options(robot, monkeypatch, option):
         assert calls == [(False, None)] and mpc.stats["cold_retries"] == 0
         np.testing.assert_allclose(fake.calls[0]["x0"], mpc.shifted_guess(first, q, 0.01, params))
     else:
-        assert calls == [(False, None), (True, mpc.config.retry_max_iter)]
+        assert calls == [(False, None), (True, mpc.solver_settings.retry_max_iter)]
         assert "lam_g0" not in fake.calls[0]
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import Gait, make_gait
@@ -23,7 +23,9 @@ def robot():
 
 def _failed_first_solve(robot, gait, t):
     """A first solve that cannot converge (one iteration from a cold start): the static hold at ``t``."""
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=4), MPCConfig(gait=gait, dt_max=0.03, cold_max_iter=1))
+    mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=4), MPCConfig(gait=gait, dt_max=0.03), SolverSettings(cold_max_iter=1)
+    )
     mpc.verbose = False
     plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=t)
     assert plan.hold and plan.fallback and not plan.success and mpc.previous is None

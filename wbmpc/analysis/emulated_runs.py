@@ -17,12 +17,12 @@ def emulated_mpc(robot, gait, nodes: int = 15, compiled: bool = True, front_forc
     """The MPC the emulated-robot runs use: ``robot``'s model, the gait (schedule), ``nodes`` nodes, torque
     limits at :data:`EMULATED_TORQUE_FRACTION` (:class:`~wbmpc.ocp.OCPSettings`), compiled Fatrop or
     in-process."""
-    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
 
-    config = MPCConfig(gait=gait, compiled=compiled, front_force_ratio=front_force_ratio)
+    config = MPCConfig(gait=gait, front_force_ratio=front_force_ratio)
     settings = OCPSettings(n_nodes=nodes, torque_limit_fraction=EMULATED_TORQUE_FRACTION)
-    mpc = WholeBodyMPC(robot, settings, config)
+    mpc = WholeBodyMPC(robot, settings, config, SolverSettings(compiled=compiled))
     mpc.verbose = False
     return mpc
 

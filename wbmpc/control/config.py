@@ -112,7 +112,8 @@ class Commands:
 
 @dataclass
 class MPCConfig:
-    """Runtime configuration (every field can change between solves without a rebuild, except solver).
+    """Runtime configuration: every field can change between solves without a rebuild (how the NLP is solved
+    is :class:`SolverSettings`, fixed at construction).
 
     Attributes:
         gait: Gait (see :func:`wbmpc.ocp.gait.make_gait`) or a :class:`wbmpc.ocp.gait.GaitSchedule` of gaits
@@ -122,18 +123,9 @@ class MPCConfig:
         mu: Friction coefficient of the cone constraint.
         Q, R: Diagonal weights; ``None`` uses :func:`default_weights`.
         front_force_ratio: Share of the weight the force targets put on the front feet.
-        solver: ``"fatrop"`` or ``"ipopt"`` (structural: fixed at construction).
-        tol: Solver tolerance (paper: 1e-3).
-        max_iter: Iteration cap of a warm-started solve.
-        cold_max_iter: Iteration cap of the first (cold) solve.
-        mu_init_warm, mu_init_cold: Initial barrier parameter for warm and cold starts.
         dual_warm_start: Pass the previous constraint multipliers as the initial dual guess.
-        compiled: Solve with the generated and compiled NLP functions (Fatrop only; built once and
-            cached, see :mod:`wbmpc.solver.codegen`); structural like ``solver``.
-        compile_flags: gcc flags of the compiled library.
         cold_retry: After a failed warm-started solve, retry once from a cold start (same tick) before
-            falling back to the previous plan.
-        retry_max_iter: Iteration cap of that retry.
+            falling back to the previous plan (its iteration cap: ``SolverSettings.retry_max_iter``).
         kick_recovery: Swing abort after a push [m/s]: when the measured horizontal base velocity jumps off
             the last plan's by more than this, a swing in its first ``kick_recovery_phase`` is aborted: the
             foot is brought down at ``touchdown_speed`` (at least ``touchdown_time``) and planned in stance
@@ -157,17 +149,8 @@ class MPCConfig:
     Q: np.ndarray | None = None
     R: np.ndarray | None = None
     front_force_ratio: float | None = None
-    solver: str = "fatrop"
-    tol: float = TOL
-    max_iter: int = WARM_MAX_ITER
-    cold_max_iter: int = 200
-    mu_init_warm: float = WARM_MU_INIT
-    mu_init_cold: float = 1e-1
     dual_warm_start: bool = True
-    compiled: bool = False
-    compile_flags: tuple[str, ...] = ("-O1",)
     cold_retry: bool = True
-    retry_max_iter: int = 100
     kick_recovery: float | None = 0.3
     kick_recovery_phase: float = 0.15
     touchdown_speed: float = 0.3
@@ -176,7 +159,7 @@ class MPCConfig:
     kick_ee_release: float | None = 0.2
 
     def __post_init__(self):
-        for name in ("dt_min", "dt_max", "mu", "tol", "mu_init_warm", "mu_init_cold"):
+        for name in ("dt_min", "dt_max", "mu"):
             value = getattr(self, name)
             if not isinstance(value, int | float | np.number) or not np.isfinite(value) or value <= 0:
                 raise ValueError(f"MPCConfig.{name} must be a positive number, got {value!r}")
@@ -195,10 +178,6 @@ class MPCConfig:
         if not isinstance(self.kick_recovery_hold, bool | np.bool_):
             hold = self.kick_recovery_hold
             raise ValueError(f"MPCConfig.kick_recovery_hold must be True or False, got {hold!r}")
-        for name in ("max_iter", "cold_max_iter", "retry_max_iter"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-                raise ValueError(f"MPCConfig.{name} must be an integer >= 1, got {value!r}")
         for name in ("Q", "R"):
             value = getattr(self, name)
             if value is not None:
@@ -211,19 +190,63 @@ class MPCConfig:
             raise ValueError(f"MPCConfig.front_force_ratio must be in [0, 1], got {self.front_force_ratio!r}")
         if self.dt_max < self.dt_min:
             raise ValueError(f"MPCConfig.dt_max ({self.dt_max}) must be >= dt_min ({self.dt_min})")
-        if self.solver not in SOLVERS:
-            raise ValueError(f"unknown solver {self.solver!r}; available: {list(SOLVERS)}")
-        if self.compiled and self.solver != "fatrop":
-            raise ValueError(
-                "MPCConfig.compiled needs solver='fatrop' (the library holds Fatrop's functions)"
-            )
         if not isinstance(self.gait, Gait | GaitSchedule):
             raise ValueError(
                 f"MPCConfig.gait must be a Gait or GaitSchedule (see wbmpc.ocp.gait), got {self.gait!r}"
             )
         if not isinstance(self.swing, SwingParams):
             raise ValueError(f"MPCConfig.swing must be a SwingParams (wbmpc.ocp.gait), got {self.swing!r}")
-        checks.names("MPCConfig.compile_flags", self.compile_flags, unique=False)
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """How the MPC's NLP is solved: fixed when the MPC builds its solvers (frozen; a new MPC for others).
+
+    Attributes:
+        solver: ``"fatrop"`` or ``"ipopt"``.
+        compiled: Solve with the generated and compiled NLP functions (Fatrop only; built once and cached,
+            see :mod:`wbmpc.solver.codegen`).
+        compile_flags: gcc flags of the compiled library.
+        tol: Solver tolerance (paper: 1e-3).
+        max_iter: Iteration cap of a warm-started solve.
+        cold_max_iter: Iteration cap of a cold start (the first solve).
+        retry_max_iter: Iteration cap of the cold retry after a failed warm solve (``MPCConfig.cold_retry``).
+        mu_init_warm, mu_init_cold: Initial barrier parameter of warm and cold starts.
+
+    Raises:
+        ValueError: On an unknown solver, ``compiled`` without Fatrop, a non-positive tolerance or barrier
+            parameter, an iteration cap below 1, or flags that are not strings.
+    """
+
+    solver: str = "fatrop"
+    compiled: bool = False
+    compile_flags: tuple[str, ...] = ("-O1",)
+    tol: float = TOL
+    max_iter: int = WARM_MAX_ITER
+    cold_max_iter: int = 200
+    retry_max_iter: int = 100
+    mu_init_warm: float = WARM_MU_INIT
+    mu_init_cold: float = 1e-1
+
+    def __post_init__(self):
+        for name in ("tol", "mu_init_warm", "mu_init_cold"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+                raise ValueError(f"SolverSettings.{name} must be a positive number, got {value!r}")
+            if not np.isfinite(value) or value <= 0:
+                raise ValueError(f"SolverSettings.{name} must be a positive number, got {value!r}")
+        for name in ("max_iter", "cold_max_iter", "retry_max_iter"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"SolverSettings.{name} must be an integer >= 1, got {value!r}")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"unknown solver {self.solver!r}; available: {list(SOLVERS)}")
+        if self.compiled and self.solver != "fatrop":
+            raise ValueError(
+                "SolverSettings.compiled needs solver='fatrop' (the library holds Fatrop's functions)"
+            )
+        checks.names("SolverSettings.compile_flags", self.compile_flags, unique=False)
+        object.__setattr__(self, "compile_flags", tuple(self.compile_flags))
 
 
 @dataclass

@@ -17,7 +17,15 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc import checks
-from wbmpc.control.config import DT_BOUNDS, SOLVERS, Commands, MPCConfig, MPCSolution, default_weights
+from wbmpc.control.config import (
+    DT_BOUNDS,
+    SOLVERS,
+    Commands,
+    MPCConfig,
+    MPCSolution,
+    SolverSettings,
+    default_weights,
+)
 from wbmpc.control.prechecks import Prechecks
 from wbmpc.control.push_recovery import PushRecovery
 from wbmpc.model.robot import FOOT_NAMES, Robot, heading
@@ -39,6 +47,7 @@ __all__ = [
     "Commands",
     "MPCConfig",
     "MPCSolution",
+    "SolverSettings",
     "WholeBodyMPC",
     "default_weights",
     "heading",
@@ -63,10 +72,20 @@ class WholeBodyMPC:
     Args:
         robot: The robot.
         settings: Structural OCP settings (nodes, torque nodes, formulation).
-        config: Runtime configuration.
+        config: Runtime configuration (weights, gait, time steps, fallbacks; may change between solves).
+        solver: How the NLP is solved (solver, compiled or not, tolerance, iteration caps); fixed.
+
+    Raises:
+        ValueError: On a robot without four feet or arguments of the wrong type.
     """
 
-    def __init__(self, robot: Robot, settings: OCPSettings | None = None, config: MPCConfig | None = None):
+    def __init__(
+        self,
+        robot: Robot,
+        settings: OCPSettings | None = None,
+        config: MPCConfig | None = None,
+        solver: SolverSettings | None = None,
+    ):
         if not isinstance(robot, Robot):
             raise ValueError(f"robot must be a wbmpc.model.robot.Robot (see load_robot), got {robot!r}")
         if robot.n_feet != len(FOOT_NAMES):
@@ -79,8 +98,11 @@ class WholeBodyMPC:
             raise ValueError(f"settings must be an OCPSettings, got {settings!r}")
         if config is not None and not isinstance(config, MPCConfig):
             raise ValueError(f"config must be an MPCConfig, got {config!r}")
+        if solver is not None and not isinstance(solver, SolverSettings):
+            raise ValueError(f"solver must be a SolverSettings (wbmpc.control.mpc), got {solver!r}")
         self.robot = robot
         self.config = config or MPCConfig()
+        self.solver_settings = solver or SolverSettings()
         self.ocp = OCP(robot, settings)
         self.n_nodes = self.ocp.n_nodes
         self._solvers = {}
@@ -97,9 +119,9 @@ class WholeBodyMPC:
     # --- solver construction --------------------------------------------------------------------------------
     def _solver(self, cold: bool, max_iter: int | None = None) -> ca.Function:
         """The solver for cold or warm starts (built on first use)."""
-        key = (self.config.solver, cold, max_iter)
+        key = (cold, max_iter)
         if key not in self._solvers:
-            self._solvers[key] = self.make_solver(f"wbmpc_{self.config.solver}", cold, max_iter)
+            self._solvers[key] = self.make_solver(f"wbmpc_{self.solver_settings.solver}", cold, max_iter)
         return self._solvers[key]
 
     def prepare(self) -> None:
@@ -113,12 +135,12 @@ class WholeBodyMPC:
         """
         self._solver(True)
         self._solver(False)
-        self._solver(True, self.config.retry_max_iter)
+        self._solver(True, self.solver_settings.retry_max_iter)
 
     def solver_options(self, cold: bool, max_iter: int | None = None) -> dict:
         """The ``casadi.nlpsol`` options of this MPC's cold- or warm-start solves
-        (:func:`wbmpc.solver.nlpsol.solver_options`; ``max_iter`` overrides the config's iteration cap)."""
-        cfg = self.config
+        (:func:`wbmpc.solver.nlpsol.solver_options`; ``max_iter`` overrides the settings' iteration cap)."""
+        cfg = self.solver_settings
         if max_iter is None:
             max_iter = cfg.cold_max_iter if cold else cfg.max_iter
         return solver_options(
@@ -131,9 +153,9 @@ class WholeBodyMPC:
         )
 
     def make_solver(self, name: str, cold: bool, max_iter: int | None = None) -> ca.Function:
-        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the config
-        (``max_iter`` overrides the config's iteration cap); compiled (cached) with ``config.compiled``."""
-        cfg = self.config
+        """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the settings
+        (``max_iter`` overrides their iteration cap); compiled (cached) with ``SolverSettings.compiled``."""
+        cfg = self.solver_settings
         library = None
         if cfg.compiled:
             if self.compiled_nlp is None:
@@ -384,7 +406,9 @@ class WholeBodyMPC:
             self.stats["cold_retries"] += 1
             args = {**args, "x0": self.cold_guess(q_hat, v_hat, params)}
             args.pop("lam_g0", None)
-            w2, lam_g2, report2 = self._run_solver(self._solver(True, self.config.retry_max_iter), args)
+            w2, lam_g2, report2 = self._run_solver(
+                self._solver(True, self.solver_settings.retry_max_iter), args
+            )
             report2["solve_time"] += report["solve_time"]
             # -1 is "no iteration count" (the solver raised): the total counts the iterations that ran.
             counts = [n for n in (report["iterations"], report2["iterations"]) if n >= 0]
@@ -468,7 +492,7 @@ class WholeBodyMPC:
             g = np.array(out["g"]).ravel()
             violation = float(np.max(np.maximum(0.0, np.maximum(self.ocp.lbg - g, g - self.ocp.ubg))))
             success = bool(stats.get("success", False)) and np.all(np.isfinite(w))
-            status, reason = solver_status(self.config.solver, stats)
+            status, reason = solver_status(self.solver_settings.solver, stats)
             if not success and status == "success":  # a non-finite iterate
                 status, reason = "non_finite_solution", "the solver returned NaN or inf"
             iterations = int(stats.get("iter_count", -1))

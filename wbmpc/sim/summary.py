@@ -72,8 +72,8 @@ def summarize(
     summary = {
         "robot": mpc.robot.name,
         "gait": gait.name,
-        "solver": mpc.config.solver,
-        "compiled": mpc.config.compiled,
+        "solver": mpc.solver_settings.solver,
+        "compiled": mpc.solver_settings.compiled,
         "plant": config.plant.kind,
         "nodes": mpc.n_nodes,
         "duration_s": float(arrays["t"][-1]) if len(arrays["t"]) else 0.0,

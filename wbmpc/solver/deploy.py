@@ -104,7 +104,7 @@ def export(
             warm start of the MPC's defaults (those of an MPC: ``mpc.solver_options(cold=False)``).
         flags: gcc flags of the solver library.
         nlp_flags: gcc flags of the compiled NLP functions (:func:`wbmpc.solver.codegen.build`, cached; an
-            MPC's are ``mpc.config.compile_flags``).
+            MPC's are ``mpc.solver_settings.compile_flags``).
 
     Returns:
         The folder.

@@ -64,23 +64,23 @@ def run_case(
             :class:`wbmpc.ocp.OCPSettings`).
         compile_flags: gcc flags of the compiled library (default: the MPC's).
     """
-    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import make_gait
     from wbmpc.sim.closed_loop import ClosedLoopConfig, machine_description, run_closed_loop
     from wbmpc.sim.loop_config import LowLevelConfig
     from wbmpc.solver import blasfeo
 
-    config = MPCConfig(gait=make_gait("trot"), solver=solver, compiled=compiled)
-    if compile_flags is not None:
-        config.compile_flags = tuple(compile_flags)
+    config = MPCConfig(gait=make_gait("trot"))
+    flags = {} if compile_flags is None else {"compile_flags": tuple(compile_flags)}
+    solver_settings = SolverSettings(solver=solver, compiled=compiled, **flags)
     settings = OCPSettings(
         n_nodes=nodes,
         formulation=formulation,
         ee_force_input=paper_layout,
         initial_state_variables=paper_layout,
     )
-    mpc = WholeBodyMPC(robot, settings, config)
+    mpc = WholeBodyMPC(robot, settings, config, solver_settings)
     mpc.verbose = progress
     start = time.perf_counter()
     mpc._solver(cold=True)  # build (or load from the cache) before timing anything

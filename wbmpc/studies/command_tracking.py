@@ -66,7 +66,7 @@ def run_case(plant: str, command: tuple[float, float, float], trot: float, robot
         ValueError: an unknown plant.
     """
     from wbmpc.analysis import emulated_mpc, record_emulated_run
-    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import parse_gait_schedule
     from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
@@ -80,7 +80,9 @@ def run_case(plant: str, command: tuple[float, float, float], trot: float, robot
     if plant == "emulated":
         mpc = emulated_mpc(mpc_robot or robot, schedule)
     else:
-        mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=schedule, compiled=True))
+        mpc = WholeBodyMPC(
+            robot, OCPSettings(n_nodes=15), MPCConfig(gait=schedule), SolverSettings(compiled=True)
+        )
         mpc.verbose = False
     start = time.perf_counter()
     if plant == "emulated":

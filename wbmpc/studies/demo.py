@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser = build_parser()
     args = parser.parse_args(argv)
     check_arguments(parser, args)
-    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
     from wbmpc.model.robot import load
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import make_gait, parse_gait_schedule
@@ -189,13 +189,15 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"gait schedule: {note}")
     if args.duration is None:
         args.duration = pick(full=default_duration, quick=0.5)
-    config = MPCConfig(gait=gait, solver=args.solver, compiled=args.compiled)
+    config = MPCConfig(gait=gait)
+    flags = {}
     if args.release:
         from wbmpc.solver.codegen import RELEASE_FLAGS
 
-        config.compile_flags = RELEASE_FLAGS
+        flags = {"compile_flags": RELEASE_FLAGS}
+    solver = SolverSettings(solver=args.solver, compiled=args.compiled, **flags)
     start = time.perf_counter()
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=args.nodes), config)
+    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=args.nodes), config, solver)
     print(
         f"OCP built in {time.perf_counter() - start:.1f} s: {mpc.ocp.n_variables} variables, "
         f"{mpc.ocp.n_constraints} constraints, {mpc.n_nodes} nodes"

@@ -139,7 +139,7 @@ def record(output: Path = HARDWARE, progress: bool = True) -> dict:
 def targets(calibration: Path, output: Path, gait: str = TARGET_RUN, progress: bool = True) -> dict:
     """The target run with the calibrated and the nominal model, and the ideal plant (see the module doc)."""
     from wbmpc.analysis import record_emulated_run
-    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.ocp import OCPSettings
     from wbmpc.ocp.gait import parse_gait_schedule
@@ -151,7 +151,9 @@ def targets(calibration: Path, output: Path, gait: str = TARGET_RUN, progress: b
     rows = {}
     start = time.perf_counter()
     schedule = parse_gait_schedule(gait)
-    ideal_mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(gait=schedule, compiled=True))
+    ideal_mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=15), MPCConfig(gait=schedule), SolverSettings(compiled=True)
+    )
     ideal_mpc.verbose = False
     ideal = run_closed_loop(
         ideal_mpc,

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import Robot, load_b1_z1
 from wbmpc.ocp import OCPSettings
 from wbmpc.quick import quick_mode
@@ -48,38 +48,30 @@ def _setup(quick: bool | None, robot: Robot | None, **mpc_kwargs):
     quick = quick_mode() if quick is None else quick
     robot = robot or load_b1_z1()
     nodes = 10 if quick else 15
-    config = MPCConfig(compiled=not quick, **mpc_kwargs)
-    return quick, robot, nodes, config
+    config = MPCConfig(**mpc_kwargs)
+    return quick, robot, nodes, config, SolverSettings(compiled=not quick)
 
 
 _MPC_CACHE: dict[tuple, WholeBodyMPC] = {}
 
 
-def _mpc(robot: Robot, nodes: int, config: MPCConfig) -> WholeBodyMPC:
-    """An MPC for ``robot`` with ``nodes`` nodes and ``config``, re-used between runs when only runtime
-    settings differ (gait, time steps, weights: building the problem and its solvers takes seconds)."""
-    structural = (
-        config.solver,
-        config.compiled,
-        tuple(config.compile_flags),
-        config.tol,
-        config.max_iter,
-        config.cold_max_iter,
-        config.retry_max_iter,
-        config.mu_init_warm,
-        config.mu_init_cold,
-    )
-    key = (id(robot), nodes, structural)
+def _mpc(robot: Robot, nodes: int, config: MPCConfig, solver: SolverSettings) -> WholeBodyMPC:
+    """An MPC for ``robot`` with ``nodes`` nodes, ``solver`` and ``config``, re-used between runs when only
+    the runtime configuration differs (gait, time steps, weights: building the problem and its solvers takes
+    seconds)."""
+    key = (id(robot), nodes, solver)
     mpc = _MPC_CACHE.get(key)
     if mpc is None or mpc.robot is not robot:
-        mpc = _MPC_CACHE[key] = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes), config)
+        mpc = _MPC_CACHE[key] = WholeBodyMPC(robot, OCPSettings(n_nodes=nodes), config, solver)
     mpc.config = config
     mpc.reset()
     return mpc
 
 
-def _run(robot, nodes, mpc_config, loop: ClosedLoopConfig, progress: bool, q0=None) -> ClosedLoopResult:
-    mpc = _mpc(robot, nodes, mpc_config)
+def _run(
+    robot, nodes, mpc_config, loop: ClosedLoopConfig, progress: bool, q0=None, *, solver: SolverSettings
+) -> ClosedLoopResult:
+    mpc = _mpc(robot, nodes, mpc_config, solver)
     mpc.verbose = progress
     return run_closed_loop(mpc, loop, q0=q0, progress=progress)
 

@@ -27,14 +27,14 @@ def compliance(quick=None, progress=True, robot=None, push: float = 40.0) -> Exp
     Reports the displacement during the push, the displacement kept afterwards and the settling time (the
     gripper slower than 2 cm/s for good).
     """
-    quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("stand", GAIT_PERIOD))
+    quick, robot, nodes, mpc_config, solver = _setup(quick, robot, gait=make_gait("stand", GAIT_PERIOD))
     start, duration = _pick(quick, full=1.0, quick=0.4), 0.3
     loop = _base_loop(
         duration=_pick(quick, full=4.0, quick=1.1),
         disturbances=(Push(start, duration, (0.0, push, 0.0), target="ee"),),
         low_level=LowLevelConfig(arm_gains=(0.0, 0.5)),
     )
-    result = _run(robot, nodes, mpc_config, loop, progress)
+    result = _run(robot, nodes, mpc_config, loop, progress, solver=solver)
     a = result.log.arrays()
     t, y = a["t"], a["ee_position"][:, 1]
     speed = np.linalg.norm(_ee_velocity(result.log), axis=1)

@@ -29,7 +29,7 @@ def time_steps_drift(quick=None, progress=True, robot=None, delay: float | str =
     The default delay is a fixed 12.5 ms, the paper's compiled solve time (one MPC period); ``"measured"``
     uses each solve's wall time on this machine instead.
     """
-    quick, robot, _, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
+    quick, robot, _, mpc_config, solver = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     nodes = 15  # the comparison is about the grid: same nodes in both modes
     duration = _pick(quick, full=10.0, quick=0.8)
     grids = {"adaptive": (0.01, 0.1), "uniform": (0.04, 0.04)}
@@ -42,7 +42,7 @@ def time_steps_drift(quick=None, progress=True, robot=None, delay: float | str =
             low_level=LowLevelConfig(kd=5.0),
             sensing=SensingConfig(velocity_cutoff_hz=50.0),
         )
-        result = _run(robot, nodes, config, loop, progress)
+        result = _run(robot, nodes, config, loop, progress, solver=solver)
         runs[label] = result
         q = result.log.arrays()["q"]
         d = result.summary["duration_s"] or 1.0

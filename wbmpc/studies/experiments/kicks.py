@@ -32,7 +32,7 @@ def disturbance_rejection(quick=None, progress=True, robot=None, magnitude: floa
     the peak lateral base velocity, the lateral displacement, the recovery time (|v_y| < 0.1 m/s) and the rear
     calf torques against their limits.
     """
-    quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
+    quick, robot, nodes, mpc_config, solver = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     kick_time = _pick(quick, full=2.0, quick=0.4)  # lift-offs at multiples of 0.4 s
     runs, per_phase = {}, {}
     for phase in (0.0, 0.25):
@@ -41,7 +41,7 @@ def disturbance_rejection(quick=None, progress=True, robot=None, magnitude: floa
             duration=t_kick + _pick(quick, full=2.5, quick=0.5),
             disturbances=(Kick(t_kick, (0.0, magnitude, 0.0)),),
         )
-        result = _run(robot, nodes, mpc_config, loop, progress)
+        result = _run(robot, nodes, mpc_config, loop, progress, solver=solver)
         runs[f"phase_{phase:g}"] = result
         per_phase[f"{phase:g}"] = _kick_report(robot, result, t_kick)
     summary = {

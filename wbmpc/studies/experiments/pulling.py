@@ -46,7 +46,17 @@ def _tether_scene(robot: Robot, q0: np.ndarray, mass: float, length: float = 1.5
 
 
 def _pull_run(
-    robot, nodes, mpc_config, quick, mass, walking: bool, progress, ground_friction=0.8, duration=None
+    robot,
+    nodes,
+    mpc_config,
+    quick,
+    mass,
+    walking: bool,
+    progress,
+    ground_friction=0.8,
+    duration=None,
+    *,
+    solver,
 ):
     q0 = robot.q_nominal
     scene, direction = _tether_scene(robot, q0, mass)
@@ -74,7 +84,7 @@ def _pull_run(
         plant=PlantConfig(kind="pybullet", scene=scene, ground_friction=ground_friction),
         commands=_commands(overrides=ramp, **kwargs),
     )
-    result = _run(robot, nodes, replace(mpc_config, gait=gait), loop, progress, q0=q0)
+    result = _run(robot, nodes, replace(mpc_config, gait=gait), loop, progress, q0=q0, solver=solver)
     return result, np.array(ee_force)
 
 
@@ -86,7 +96,7 @@ def pulling_load(quick=None, progress=True, robot=None, masses=None) -> Experime
     least half the commanded displacement). The sweep over ``masses`` (walking) finds the largest load that
     succeeds (the paper: 14 kg in simulation).
     """
-    quick, robot, nodes, mpc_config = _setup(quick, robot)
+    quick, robot, nodes, mpc_config, solver = _setup(quick, robot)
     masses = (
         masses if masses is not None else _pick(quick, full=(12.0, 14.0, 16.0, 18.0, 20.0, 25.0), quick=())
     )
@@ -94,7 +104,7 @@ def pulling_load(quick=None, progress=True, robot=None, masses=None) -> Experime
     for label, walking, mass in [("stance_10kg", False, 10.0), ("walking_10kg", True, 10.0)] + [
         (f"walking_{m:g}kg", True, m) for m in masses
     ]:
-        result, force = _pull_run(robot, nodes, mpc_config, quick, mass, walking, progress)
+        result, force = _pull_run(robot, nodes, mpc_config, quick, mass, walking, progress, solver=solver)
         runs[label] = result
         cases[label] = _pull_report(result, walking, mass, force)
         if label.startswith("walking") and mass > 10 and not cases[label]["success"]:

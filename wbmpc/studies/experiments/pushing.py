@@ -29,7 +29,7 @@ def box_pushing(quick=None, progress=True, robot=None, force: float = 30.0) -> E
     commanded force on the robot is ``(-force, 0, 0)`` (the box pushes back), ramped in over 0.5 s; the
     simulator measures the actual contact force on the gripper.
     """
-    quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
+    quick, robot, nodes, mpc_config, solver = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     ee = _ee_start(robot, robot.q_nominal)
     front = _robot_front(robot, robot.q_nominal) + 0.002
     depth, height = 0.2, ee[2] + 0.1
@@ -50,7 +50,7 @@ def box_pushing(quick=None, progress=True, robot=None, force: float = 30.0) -> E
         plant=PlantConfig(kind="pybullet", scene=scene),
         commands=_commands(overrides=schedule),
     )
-    result = _run(robot, nodes, mpc_config, loop, progress)
+    result = _run(robot, nodes, mpc_config, loop, progress, solver=solver)
     a = result.log.arrays()
     held = a["t"] >= hold
     fx = a["ee_force_sim"][held, 0]

@@ -23,7 +23,7 @@ def robustness_sweep(quick=None, progress=True, robot=None, magnitudes=None, pha
 
     Phase 0 is the lift-off of a diagonal pair; 0.25 mid-swing; 0.5 the next lift-off (the other pair).
     """
-    quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
+    quick, robot, nodes, mpc_config, solver = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     magnitudes = magnitudes or _pick(quick, full=(0.4, 0.6, 0.8, 1.0), quick=(0.8,))
     phases = phases or _pick(quick, full=(0.0, 0.125, 0.25, 0.375), quick=(0.0,))
     t0 = _pick(quick, full=1.2, quick=0.4)  # a lift-off (a multiple of half the trot period): phase 0
@@ -35,7 +35,7 @@ def robustness_sweep(quick=None, progress=True, robot=None, magnitudes=None, pha
                 duration=t_kick + _pick(quick, full=2.0, quick=0.5),
                 disturbances=(Kick(t_kick, (0.0, m, 0.0)),),
             )
-            result = _run(robot, nodes, mpc_config, loop, progress=False)
+            result = _run(robot, nodes, mpc_config, loop, progress=False, solver=solver)
             runs[f"{m:g}_{ph:g}"] = result
             grid.append(
                 {

@@ -28,14 +28,14 @@ def arm_tracking(quick=None, progress=True, robot=None) -> ExperimentResult:
     with a 5 s period, ramped in over 1 s. Pure feed-forward torques (Kp = Kd = 0), no delay (paper).
     Reports the end-effector RMS error and how base height and pitch adapt.
     """
-    quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
+    quick, robot, nodes, mpc_config, solver = _setup(quick, robot, gait=make_gait("trot", GAIT_PERIOD))
     loop = _base_loop(
         duration=_pick(quick, full=10.0, quick=1.0),
         commands=_commands(
             base_velocity=(0.2, 0.0, 0.0), arm_reference=ArmReference(ramp=_pick(quick, full=1.0, quick=0.3))
         ),
     )
-    result = _run(robot, nodes, mpc_config, loop, progress)
+    result = _run(robot, nodes, mpc_config, loop, progress, solver=solver)
     arrays = result.log.arrays()
     q = arrays["q"]
     pitch = _pitch(q)

@@ -26,7 +26,7 @@ from wbmpc.studies.experiments.common import (
 def wiping(quick=None, progress=True, robot=None, normal_force: float = 20.0) -> ExperimentResult:
     """Wipe a vertical board while standing: the gripper slides 10 cm left and right along the board with a
     normal-force target; the simulator measures the normal force actually applied."""
-    quick, robot, nodes, mpc_config = _setup(quick, robot, gait=make_gait("stand", GAIT_PERIOD))
+    quick, robot, nodes, mpc_config, solver = _setup(quick, robot, gait=make_gait("stand", GAIT_PERIOD))
     ee = _ee_start(robot, robot.q_nominal)
     front = _robot_front(robot, robot.q_nominal)
     board = Wall((front + 0.002, ee[1], ee[2]), (-1.0, 0.0, 0.0), size=(1.2, 0.8), friction=0.3)
@@ -42,7 +42,7 @@ def wiping(quick=None, progress=True, robot=None, normal_force: float = 20.0) ->
         plant=PlantConfig(kind="pybullet", scene={"board": board}),
         commands=_commands(arm_reference=reference, overrides=schedule),
     )
-    result = _run(robot, nodes, mpc_config, loop, progress)
+    result = _run(robot, nodes, mpc_config, loop, progress, solver=solver)
     a = result.log.arrays()
     held = a["t"] >= 0.5
     fx = a["ee_force_sim"][held, 0]

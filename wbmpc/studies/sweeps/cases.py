@@ -63,13 +63,14 @@ _MPCS: dict = {}  # per worker process: building the problem and loading the sol
 
 
 def _closed_loop_mpc(nodes: int, compiled: bool):
-    from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+    from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.ocp import OCPSettings
 
     key = (nodes, compiled)
     if key not in _MPCS:
-        _MPCS[key] = WholeBodyMPC(load_b1_z1(), OCPSettings(n_nodes=nodes), MPCConfig(compiled=compiled))
+        solver = SolverSettings(compiled=compiled)
+        _MPCS[key] = WholeBodyMPC(load_b1_z1(), OCPSettings(n_nodes=nodes), MPCConfig(), solver)
         _MPCS[key].verbose = False
     return _MPCS[key]
 
@@ -116,7 +117,7 @@ def warm_closed_loop_cache(cases: list[dict]) -> None:
 
     for nodes in sorted({c.get("nodes", 15) for c in cases if c.get("compiled", True)}):
         mpc = _closed_loop_mpc(nodes, True)
-        mpc.compiled_nlp = codegen.build(mpc.ocp, tuple(mpc.config.compile_flags), progress=False)
+        mpc.compiled_nlp = codegen.build(mpc.ocp, mpc.solver_settings.compile_flags, progress=False)
 
 
 # ----------------------------------------------- PyBullet studies: robustness, payload, nodes, time steps
@@ -137,7 +138,8 @@ NOISE = {
 
 
 def _experiment_setup(case: dict, **mpc_kwargs):
-    """(the experiments' helpers :mod:`wbmpc.studies.experiments.common`, robot, nodes, MPC config) for a
+    """(the experiments' helpers :mod:`wbmpc.studies.experiments.common`, robot, nodes, MPC config, solver
+    settings) for a
     PyBullet case (``quick``, ``nodes``, ``compiled`` override the experiments' defaults: compiled with 15
     nodes, quick in-process with 10)."""
     from dataclasses import replace
@@ -147,15 +149,17 @@ def _experiment_setup(case: dict, **mpc_kwargs):
 
     if "robot" not in _ROBOT:
         _ROBOT["robot"] = load_b1_z1()
-    quick, robot, nodes, config = ex._setup(bool(case.get("quick", False)), _ROBOT["robot"], **mpc_kwargs)
+    quick, robot, nodes, config, solver = ex._setup(
+        bool(case.get("quick", False)), _ROBOT["robot"], **mpc_kwargs
+    )
     nodes = int(case.get("nodes", nodes))
     if "compiled" in case:
-        config = replace(config, compiled=bool(case["compiled"]))
+        solver = replace(solver, compiled=bool(case["compiled"]))
     # MPC options a case may switch (comparisons)
     for name in ("kick_recovery", "kick_recovery_phase", "kick_recovery_hold", "kick_ee_release"):
         if name in case and hasattr(config, name):
             config = replace(config, **{name: case[name]})
-    return ex, robot, nodes, config
+    return ex, robot, nodes, config, solver
 
 
 def _sensor(case: dict):
@@ -214,7 +218,7 @@ def robustness_case(case: dict) -> dict:
     from wbmpc.sim.loop_config import SensingConfig
 
     # 15 nodes in quick mode too (in-process): a 10-node horizon (0.37 s) falls short of the swing it aborts.
-    ex, robot, nodes, config = _experiment_setup({"nodes": 15, **case}, gait=_trot())
+    ex, robot, nodes, config, solver = _experiment_setup({"nodes": 15, **case}, gait=_trot())
     quick = bool(case.get("quick", False))
     magnitude = float(case.get("magnitude", 0.8))
     direction = np.asarray(DIRECTIONS[case.get("direction", "lateral")])
@@ -230,7 +234,7 @@ def robustness_case(case: dict) -> dict:
         delay=_delay(case),
         sensing=SensingConfig(noise=noise, velocity_cutoff_hz=50.0 if noise is not None else None),
     )
-    mpc = ex._mpc(robot, nodes, config)
+    mpc = ex._mpc(robot, nodes, config, solver)
     mpc.verbose = False
     aborts_before = mpc.stats.get("swing_aborts", 0)
     result = ex.run_closed_loop(mpc, loop, progress=False)
@@ -282,11 +286,11 @@ def warm_experiment_cache(cases: list[dict]) -> None:
     """Warm-up of the PyBullet studies: build (or load) the compiled library of each horizon once."""
     from wbmpc.solver import codegen
 
-    for nodes in sorted({int(_experiment_setup(c)[2]) for c in cases if _experiment_setup(c)[3].compiled}):
-        _, robot, _, config = _experiment_setup({"nodes": nodes})
+    for nodes in sorted({int(_experiment_setup(c)[2]) for c in cases if _experiment_setup(c)[4].compiled}):
+        _, robot, _, _, solver = _experiment_setup({"nodes": nodes})
         from wbmpc.ocp import OCP, OCPSettings
 
-        codegen.build(OCP(robot, OCPSettings(n_nodes=nodes)), tuple(config.compile_flags), progress=False)
+        codegen.build(OCP(robot, OCPSettings(n_nodes=nodes)), solver.compile_flags, progress=False)
 
 
 def _robustness_study(quick: bool) -> list[dict]:
@@ -310,11 +314,11 @@ def payload_case(case: dict) -> dict:
     load moves at least half the commanded displacement."""
     from wbmpc.studies.experiments.pulling import _pull_report, _pull_run
 
-    _, robot, nodes, config = _experiment_setup(case)
+    _, robot, nodes, config, solver = _experiment_setup(case)
     quick = bool(case.get("quick", False))
     mass = float(case.get("mass", 10.0))
     walking = bool(case.get("walking", True))
-    result, force = _pull_run(robot, nodes, config, quick, mass, walking, progress=False)
+    result, force = _pull_run(robot, nodes, config, quick, mass, walking, progress=False, solver=solver)
     report = _pull_report(result, walking, mass, force)
     report.pop("mass_kg", None)
     report.pop("walking", None)
@@ -336,7 +340,7 @@ def nodes_case(case: dict) -> dict:
     10-100 ms geometric steps: solve time and tracking. ``duration`` [s] (full 4.0, quick 0.6), ``quick``."""
     from wbmpc.control.arm_task import ArmReference
 
-    ex, robot, nodes, config = _experiment_setup(case, gait=_trot())
+    ex, robot, nodes, config, solver = _experiment_setup(case, gait=_trot())
     quick = bool(case.get("quick", False))
     loop = ex._base_loop(
         duration=float(case.get("duration", 0.6 if quick else 4.0)),
@@ -344,7 +348,7 @@ def nodes_case(case: dict) -> dict:
             base_velocity=(0.2, 0.0, 0.0), arm_reference=ArmReference(ramp=0.3 if quick else 1.0)
         ),
     )
-    mpc = ex._mpc(robot, nodes, config)
+    mpc = ex._mpc(robot, nodes, config, solver)
     mpc.verbose = False
     result = ex.run_closed_loop(mpc, loop, progress=False)
     s = result.summary
@@ -379,7 +383,7 @@ def time_steps_case(case: dict) -> dict:
     from wbmpc.ocp.time_grid import geometric_time_steps
     from wbmpc.sim.loop_config import LowLevelConfig, SensingConfig
 
-    ex, robot, _, config = _experiment_setup(case, gait=_trot())
+    ex, robot, _, config, solver = _experiment_setup(case, gait=_trot())
     quick = bool(case.get("quick", False))
     nodes = int(case.get("nodes", 10 if quick else 15))
     uniform = float(sum(geometric_time_steps(nodes, 0.01, 0.1))) / (nodes - 1)  # same horizon (N = 15: 40 ms)
@@ -391,7 +395,7 @@ def time_steps_case(case: dict) -> dict:
         low_level=LowLevelConfig(kd=5.0),
         sensing=SensingConfig(velocity_cutoff_hz=50.0, noise=_sensor(case)),
     )
-    mpc = ex._mpc(robot, nodes, config)
+    mpc = ex._mpc(robot, nodes, config, solver)
     mpc.verbose = False
     result = ex.run_closed_loop(mpc, loop, progress=False)
     q = result.log.arrays()["q"]
