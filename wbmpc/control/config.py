@@ -1,9 +1,10 @@
-"""What a user sets and gets back around a solve: commands, the MPC's runtime configuration, the plan.
+"""What a user sets and gets back around a solve: commands, the MPC's configuration, the plan.
 
-:class:`Commands` (velocities, arm velocity and force, base height), :class:`MPCConfig` (gait, swing,
-weights, time steps, solver options, fallbacks, push recovery) and :class:`MPCSolution` (a plan over the
-horizon with its solver report). :class:`wbmpc.control.mpc.WholeBodyMPC` consumes the first two and returns
-the third; all three are re-exported from :mod:`wbmpc.control.mpc`.
+:class:`Commands` (velocities, arm velocity and force, base height, gait), :class:`MPCConfig` (the runtime
+configuration: gait, swing, weights, time steps, fallbacks, push recovery), :class:`SolverSettings` (how the
+NLP is solved, fixed at construction) and :class:`MPCSolution` (a plan over the horizon with its solver
+report). :class:`wbmpc.control.mpc.WholeBodyMPC` consumes the first three and returns the last; all are
+re-exported from :mod:`wbmpc.control.mpc`.
 """
 
 from __future__ import annotations
