@@ -421,6 +421,7 @@ def test_a_failed_retry_reports_both_times_and_the_iterations_that_ran(
     assert len(calls) == 2
     assert second.success is False and second.fallback is True and second.hold is False
     assert second.solve_time == 0.75  # the warm solve's time and the retry's
+    assert second.timings["wall"] == 0.75 and second.timings["cold_retry"] == 1.0  # both, on every path
     assert second.iterations == iterations
     assert second.reason.startswith("warm start: ") and "; cold retry: scripted " in second.reason
     for name in PLAN:
@@ -438,6 +439,7 @@ def test_a_converged_retry_is_the_new_plan_with_both_times(robot, monkeypatch):
     second = mpc.solve(q, v, t=0.01)
     assert second.success and not second.fallback and second.reason == ""
     assert second.solve_time == 0.75 and second.iterations == 12 and second.timings["cold_retry"] == 1.0
+    assert second.timings["wall"] == 0.75
     np.testing.assert_array_equal(second.w, first.w)
     assert mpc.previous is second and mpc.stats["failures"] == 0 and mpc.stats["cold_retries"] == 1
 

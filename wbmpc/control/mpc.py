@@ -413,7 +413,9 @@ class WholeBodyMPC:
             # -1 is "no iteration count" (the solver raised): the total counts the iterations that ran.
             counts = [n for n in (report["iterations"], report2["iterations"]) if n >= 0]
             report2["iterations"] = sum(counts) if counts else -1
-            report2["timings"] = {**report2["timings"], "cold_retry": 1.0}
+            # Where the time of both solves went (each entry summed), whichever report is kept below.
+            both = {k: report["timings"].get(k, 0.0) + t for k, t in report2["timings"].items()}
+            report2["timings"] = {**report["timings"], **both, "cold_retry": 1.0}
             if not report2["success"]:
                 report2["reason"] = f"warm start: {report['status']}; cold retry: {report2['reason']}"
             if report2["success"] or w is None:
@@ -421,6 +423,7 @@ class WholeBodyMPC:
             else:
                 report["solve_time"], report["iterations"] = report2["solve_time"], report2["iterations"]
                 report["reason"] = report2["reason"]  # both failures, not the warm one alone
+                report["timings"] = report2["timings"]
         report["findings"] = findings
         if not report["success"]:
             self.stats["failures"] += 1
