@@ -64,7 +64,13 @@ compiled, steps, warmup = {compiled}, {steps}, {warmup}
 flags = {{"compile_flags": {flags}}} if {flags} != ("-O1",) else {{}}
 robot = load_b1_z1()
 settings = OCPSettings(n_nodes=15, **{layout})  # the baseline's default layout is the paper's
-mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled, **flags))
+try:
+    from wbmpc.control.mpc import SolverSettings
+except ImportError:  # an older checkout (the baseline): the solver settings are MPCConfig fields there
+    mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled, **flags))
+else:
+    solver = SolverSettings(compiled=compiled, **flags)
+    mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot")), solver)
 mpc.verbose = False
 mpc.prepare()  # build or load before timing
 log = run_closed_loop(mpc, ClosedLoopConfig(duration=(steps + warmup) / 80.0), progress=False).log
