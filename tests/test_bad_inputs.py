@@ -18,6 +18,7 @@ from wbmpc.model.robot import RobotModelError, example_robot_data_dir, load, loa
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCPSettings
 from wbmpc.ocp.gait import Gait, GaitSchedule, SwingParams, make_gait, parse_gait_schedule
+from wbmpc.sim.actuators import MotorModel
 from wbmpc.sim.closed_loop import ClosedLoopConfig
 from wbmpc.sim.disturbances import Kick, Push
 from wbmpc.sim.loop_config import CommandSchedule, LowLevelConfig, PlantConfig, SensingConfig
@@ -460,6 +461,14 @@ CATALOGUE = [
         lambda: _closed_loop(plant=PlantConfig(scene=[Box((0.1, 0.1, 0.1), (1, 0, 0))])),
         C,
         "need PlantConfig(kind='pybullet')",
+    ),
+    ("silent", "motor friction < 0", lambda: MotorModel(coulomb=-1.0), C, "MotorModel.coulomb must be"),
+    (
+        "silent",
+        "motor armature NaN",
+        lambda: MotorModel(armature=[0.1, NAN]),
+        C,
+        "MotorModel.armature must be",
     ),
     ("named", "disturbance type", lambda: _pb_loop(disturbances=["kick"]), C, "unknown disturbance 'kick'"),
     (

@@ -51,6 +51,13 @@ class MotorModel:
             "MotorModel.friction_velocity", self.friction_velocity, low=0.0, low_open=True, unit="rad/s"
         )
         checks.number("MotorModel.latency", self.latency, low=0.0, unit="s")
+        for name in ("coulomb", "viscous", "armature"):  # sizes are checked against the joints in per_joint
+            values = np.asarray(getattr(self, name), dtype=float)
+            if values.ndim > 1 or not np.all(np.isfinite(values)) or np.any(values < 0):
+                raise ValueError(
+                    f"MotorModel.{name} must be a scalar or one value per joint, finite and >= 0, "
+                    f"got {getattr(self, name)!r}"
+                )
 
     def per_joint(self, nj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(coulomb, viscous, armature)`` as arrays (nj,); raises ``ValueError`` on a wrong size, a negative

@@ -9,6 +9,8 @@ the commanded velocity; otherwise the commanded world velocity as it is.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pinocchio as pin
 
@@ -49,7 +51,7 @@ class ArmCommander:
                 self.reference = self.reference.centered_at(q0, self.data.oMf[self.ee_id].translation)
 
     def command(
-        self, q_meas: np.ndarray, t: float, cmd: dict, time_steps, t_plan: float
+        self, q_meas: np.ndarray, t: float, cmd: dict, time_steps: Callable[[], np.ndarray], t_plan: float
     ) -> np.ndarray | None:
         """The end-effector velocity command [m/s], (3,) or (3, N-1), of a solve at ``t`` [s]; ``None``
         without an arm.
@@ -58,7 +60,7 @@ class ArmCommander:
             q_meas: The configuration the controller sees (nq,).
             t: Time of the measurement [s].
             cmd: The commands at ``t`` (:meth:`CommandSchedule.at`).
-            time_steps: The MPC's time steps [s] (for the per-stage preview).
+            time_steps: Returns the MPC's time steps [s] (called only for the per-stage preview).
             t_plan: Time the plan starts at [s] (``t`` without delay compensation).
         """
         if self.ee_id is None:
@@ -76,7 +78,7 @@ class ArmCommander:
             hold[1] = t
             reference, local_velocity = ArmReference.still(hold[0]), cmd["ee_velocity"]
         R_heading, _ = heading_frame(q_meas)
-        stage_times = node_times(time_steps, t_plan)[:-1] if self.arm_preview else None
+        stage_times = node_times(time_steps(), t_plan)[:-1] if self.arm_preview else None
         ee_cmd, self.ee_reference = velocity_command(
             reference,
             q_meas,

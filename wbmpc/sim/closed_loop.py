@@ -113,7 +113,7 @@ def run_closed_loop(
         ValueError: On a bad config (before anything is built) or ``keep_plans`` with ``log_path``.
     """
     config = config or ClosedLoopConfig()
-    config.check()
+    n_steps, per_mpc, _ = config.steps()  # checks the config (fields may have changed since construction)
     if log_path is None:
         log = ClosedLoopLog()
     else:
@@ -124,7 +124,6 @@ def run_closed_loop(
         chunk_steps = max(1, round(log_chunk / config.plant.dt))
         meta = {"requested_duration_s": config.duration, "chunk_s": chunk_steps * config.plant.dt}
         log = ClosedLoopLog.streaming(log_path, chunk_steps, meta)
-    n_steps, per_mpc, _ = config.steps()
     observers = [
         LogRecorder(log, keep_plans),
         FailureObserver(),
@@ -352,7 +351,7 @@ class ClosedLoop:
             ee_force=cmd["ee_force"],
             gait=self.schedule.gait,
         )
-        self.ee_command = self.arm.command(self.q_meas, t, cmd, mpc.time_steps(), t_plan)
+        self.ee_command = self.arm.command(self.q_meas, t, cmd, mpc.time_steps, t_plan)
         self.ee_reference = self.arm.ee_reference
         if self.ee_command is not None:
             commands.ee_velocity = self.ee_command
