@@ -29,7 +29,8 @@ ALLOWED = {
     "sim": {"model", "ocp", "solver", "control", "estimation", "io"},
     "viz": {"model"},
     "analysis": {"model", "ocp", "control", "io", "sim"},
-    "studies": {"model", "ocp", "solver", "control", "estimation", "io", "sim", "viz", "analysis"},
+    "runtime": {"model", "ocp", "solver", "control", "estimation", "io", "sim"},
+    "studies": {"model", "ocp", "solver", "control", "estimation", "io", "sim", "viz", "analysis", "runtime"},
 }
 
 

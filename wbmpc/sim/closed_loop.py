@@ -33,12 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.control.command_ramp import CommandRamp
-from wbmpc.control.delay import DelayEstimate, predict_state
 from wbmpc.control.low_level import LowLevelController
-from wbmpc.control.mpc import Commands, MPCSolution, WholeBodyMPC
+from wbmpc.control.mpc import MPCSolution, WholeBodyMPC
 from wbmpc.sim.actuators import ActuatedPlant, Actuators
-from wbmpc.sim.arm_commander import ArmCommander
 from wbmpc.sim.disturbances import Kick, Push
 from wbmpc.sim.hardware import EstimatedState, PlannedContacts, estimate_errors
 from wbmpc.sim.loop_config import (
@@ -51,6 +48,7 @@ from wbmpc.sim.loop_config import (
 from wbmpc.sim.loop_log import ClosedLoopLog, ClosedLoopResult
 from wbmpc.sim.motor_drive import MotorDrive
 from wbmpc.sim.observers import FailureObserver, LogRecorder, LoopObserver, ProgressBar
+from wbmpc.sim.planner import Planner
 from wbmpc.sim.plant import ContactPlant, Plant, fallen
 from wbmpc.sim.sensing import StateSensor
 from wbmpc.sim.summary import (
@@ -74,6 +72,7 @@ __all__ = [
     "blasfeo_record",
     "command_tracking",
     "machine_description",
+    "joint_level",
     "make_plant",
     "run_closed_loop",
     "summarize",
@@ -219,7 +218,7 @@ class ClosedLoop:
         self.plant = make_plant(robot, config)
         self.q0 = robot.q_nominal if q0 is None else np.asarray(q0, dtype=float)
         self.state = self.plant.reset(self.q0, np.zeros(robot.nv))
-        self.low, self.drive = _joint_level(robot, config)
+        self.low, self.drive = joint_level(robot, config)
         sensing = config.sensing
         self.sensor = StateSensor(robot.model, dt_low, sensing.noise, sensing.velocity_cutoff_hz)
         self.estimator = None
@@ -231,15 +230,28 @@ class ClosedLoop:
                 config.plant.hardware,
                 sensing.velocity_cutoff_hz,
             )
-        self.arm = ArmCommander(robot, self.schedule, self.q0, config.arm_kp, config.arm_preview)
-        self.ee_id = self.arm.ee_id
+        self.planner = Planner(mpc, config, self.q0)
+        self.ee_id = self.planner.arm.ee_id
         self.scene_names = self.plant.body_names
         self.observers: list[LoopObserver] = list(observers)
         self.step, self.t = 0, 0.0
         self.tau = np.zeros(robot.nj)
-        self.ee_command, self.ee_reference = None, self.arm.ee_reference
-        self.commands = self.schedule.at(0.0, self.gait)
         self.contact = np.ones(robot.n_feet, dtype=bool)
+
+    @property
+    def commands(self) -> dict:
+        """The commands of the last solve (:meth:`CommandSchedule.at`, ramped)."""
+        return self.planner.commands
+
+    @property
+    def ee_command(self) -> np.ndarray | None:
+        """The last solve's end-effector velocity command [m/s] (``None`` without an arm)."""
+        return self.planner.ee_command
+
+    @property
+    def ee_reference(self) -> np.ndarray | None:
+        """The arm's reference position [m] at the last solve."""
+        return self.planner.ee_reference
 
     def contact_plan(self, times) -> np.ndarray:
         """Contacts (n_feet, n) at ``times`` [s]: the MPC's plan (the gait with any swing aborted after a
@@ -275,15 +287,9 @@ class ClosedLoop:
         mpc.reset()
         kicks = {round(d.time / dt): d for d in config.disturbances if isinstance(d, Kick)}
         pushes = [d for d in config.disturbances if isinstance(d, Push)]
-        self.q_meas, self.v_meas = self.sensor.measure(self.state.q, self.state.v)
-        if self.estimator is not None:
-            self.q_meas, self.v_meas = self.estimator.reset(self.state.q, self.state.v)
+        self._start_sensing()
         self._pending: tuple[int, MPCSolution] | None = None  # (plant step at which it applies, plan)
-        ramp = self.schedule.ramp
-        self._ramp = None if ramp is None else CommandRamp(*ramp)
-        self._expected_delay = DelayEstimate(
-            None if config.delay in ("off", "measured") else float(config.delay)
-        )
+        self.planner.reset()
         self._busy_until = 0  # plant step before which no new solve can start (the solver is working)
         self._next_solve = 0  # plant step of the next MPC tick
         contacts_from = 0  # plant step at which period_contacts begins
@@ -294,7 +300,7 @@ class ClosedLoop:
             if interrupt is not None:
                 interrupt.check()  # Ctrl-C
             if self._pending is not None and step >= self._pending[0]:
-                self.low.update(self._pending[1])
+                self._deliver(self._pending[1])
                 self._pending = None
             solve_now = step >= self._busy_until and step >= self._next_solve
             if config.mpc_schedule == "ticks":
@@ -313,7 +319,7 @@ class ClosedLoop:
             if low_tick:
                 self._joint_commands()
             if self.drive is not None:
-                self.tau = self.drive.torque(self.state.q[7:], self.state.v[6:])
+                self.tau = self._drive_torque()
             if low_tick:
                 for observer in self.observers:
                     observer.on_tick(self)
@@ -331,40 +337,18 @@ class ClosedLoop:
         return False
 
     def _solve(self, step: int) -> None:
-        """An MPC tick: the commands, the state to plan from, the solve, and when its plan applies."""
-        config, mpc, low, t = self.config, self.mpc, self.low, self.t
+        """An MPC tick: the plan (:class:`~wbmpc.sim.planner.Planner`) and when it applies."""
+        config, low = self.config, self.low
         dt = config.plant.dt
         self._next_solve = step + self.per_mpc
         if self.sensor.is_ground_truth and self.estimator is None:
             self.q_meas, self.v_meas = self.state.q.copy(), self.state.v.copy()
-        cmd = self.commands = self.schedule.at(t, self.gait)
-        if self._ramp is not None:
-            cmd["base_velocity"], cmd["base_yaw_rate"] = self._ramp(
-                t, cmd["base_velocity"], cmd["base_yaw_rate"]
-            )
-        t_plan = t
-        if config.delay_compensation and config.delay != "off" and low.plan is not None:
-            t_plan = t + math.ceil(self._expected_delay.expected() / dt - 1e-9) * dt
-        commands = Commands(
-            base_linear_velocity=cmd["base_velocity"],
-            base_angular_velocity=np.array([0, 0, cmd["base_yaw_rate"]]),
-            ee_force=cmd["ee_force"],
-            gait=self.schedule.gait,
-        )
-        self.ee_command = self.arm.command(self.q_meas, t, cmd, mpc.time_steps, t_plan)
-        self.ee_reference = self.arm.ee_reference
-        if self.ee_command is not None:
-            commands.ee_velocity = self.ee_command
-        q_plan, v_plan = self.q_meas, self.v_meas
-        if t_plan > t:  # plan from where the robot will be when the plan arrives
-            q_plan, v_plan = predict_state(self.robot.model, low.plan, self.q_meas, self.v_meas, t, t_plan)
-        plan = mpc.solve(q_plan, v_plan, t_plan, commands)
-        if step > 0:  # the cold first solve, before the robot moves, says nothing of the next ones
-            self._expected_delay.record(plan.timings.get("total", plan.solve_time))
+        t_plan = self.planner.plan_time(self.t, low.plan)
+        plan = self.planner.plan(self.q_meas, self.v_meas, self.t, low.plan, record_delay=step > 0)
         # The plan is ready when the whole call returns (parameters, prechecks, solve, unpacking).
         delay = _delay_steps(config, plan.timings.get("total", plan.solve_time))
         if delay == 0 or low.plan is None:  # no delay, or nothing to hold yet (the robot starts at rest)
-            low.update(plan)
+            self._deliver(plan)
             apply_step = step
         else:
             # A compensated plan starts at t_plan: one that is ready sooner waits for it (the plan in use
@@ -374,6 +358,20 @@ class ClosedLoop:
         self._busy_until = apply_step
         for observer in self.observers:
             observer.on_solve(self, plan, apply_step * dt)
+
+    def _start_sensing(self) -> None:
+        """The first measurement, before the first step (the estimator starts at the true state)."""
+        self.q_meas, self.v_meas = self.sensor.measure(self.state.q, self.state.v)
+        if self.estimator is not None:
+            self.q_meas, self.v_meas = self.estimator.reset(self.state.q, self.state.v)
+
+    def _deliver(self, plan: MPCSolution) -> None:
+        """A plan reaches the low level."""
+        self.low.update(plan)
+
+    def _drive_torque(self) -> np.ndarray:
+        """The motor drives' torque at this plant step (``joint_pd="drive"``)."""
+        return self.drive.torque(self.state.q[7:], self.state.v[6:])
 
     def _joint_commands(self) -> None:
         """A low-level tick: what the controller sees, and the torques (or the drives' setpoints)."""
@@ -417,7 +415,7 @@ def make_plant(robot, config: ClosedLoopConfig) -> Plant:
     return ActuatedPlant(plant, Actuators(motors, robot.joint_torque_limits, plant_config.dt))
 
 
-def _joint_level(robot, config: ClosedLoopConfig) -> tuple[LowLevelController, MotorDrive | None]:
+def joint_level(robot, config: ClosedLoopConfig) -> tuple[LowLevelController, MotorDrive | None]:
     """The low level and, with ``joint_pd="drive"``, the motor drives that run its PD law."""
     low_config = config.low_level
     kp = np.full(robot.nj, float(low_config.kp))

@@ -61,6 +61,7 @@ from wbmpc.sim.actuators import MotorModel
 
 __all__ = [
     "EstimatedState",
+    "SyntheticSensors",
     "PlannedContacts",
     "HardwareProfile",
     "estimate_errors",
@@ -210,6 +211,45 @@ class PlannedContacts:
         return self.sample([t]).contact[:, 0]
 
 
+class SyntheticSensors:
+    """The robot's IMU and encoders, read off the true state: what a robot's ``rt/lowstate`` carries.
+
+    Args:
+        dt: Sample period [s] (the IMU is synthesised from two consecutive true states this far apart).
+        profile: Sensor errors (``imu``, ``encoder_noise``, ``encoder_velocity_noise``, ``seed``);
+            ``None``: exact sensors.
+    """
+
+    def __init__(self, dt: float, profile: HardwareProfile | None = None):
+        self.profile = profile or HardwareProfile.ideal()
+        self.dt = float(dt)
+        self._rng = np.random.default_rng(self.profile.seed)
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    def reset(self, q: np.ndarray, v: np.ndarray) -> None:
+        """Start from the true state ``(q, v)`` (the noise restarts from the profile's seed)."""
+        self._rng = np.random.default_rng(self.profile.seed)
+        self._prev = (q.copy(), v.copy())
+
+    def readings(self, q: np.ndarray, v: np.ndarray) -> tuple[ImuReading, JointReading]:
+        """The IMU and encoder readings of the true state ``(q, v)`` one period after the previous one.
+
+        Raises:
+            RuntimeError: before :meth:`reset`.
+        """
+        if self._prev is None:
+            raise RuntimeError("call reset(q0, v0) first")
+        n, rng = self.profile, self._rng
+        imu = synthesize_imu(q, v, *self._prev, self.dt, noise=n.imu, rng=rng)
+        nj = q.size - 7
+        joints = JointReading(
+            q[7:] + n.encoder_noise * rng.standard_normal(nj),
+            v[6:] + n.encoder_velocity_noise * rng.standard_normal(nj),
+        )
+        self._prev = (q.copy(), v.copy())
+        return imu, joints
+
+
 class EstimatedState:
     """The state estimator in the closed loop, fed with synthesised IMU and encoder readings.
 
@@ -232,33 +272,28 @@ class EstimatedState:
         self.estimator = StateEstimator(
             robot, self.dt, self.profile.estimator, velocity_cutoff_hz=velocity_cutoff_hz
         )
-        self._rng = np.random.default_rng(self.profile.seed)
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self.sensors = SyntheticSensors(self.dt, self.profile)
 
     def reset(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Start from the true state (the robot at rest before the run); returns it as the first estimate."""
         self.estimator.reset(q, v)
-        self._rng = np.random.default_rng(self.profile.seed)
-        self._prev = (q.copy(), v.copy())
+        self.sensors.reset(q, v)
         return q.copy(), v.copy()
 
     def readings(self, q: np.ndarray, v: np.ndarray) -> tuple[ImuReading, JointReading]:
         """The IMU and encoder readings of the true state ``(q, v)`` one period after the previous one."""
-        if self._prev is None:
+        if self.sensors._prev is None:
             raise RuntimeError("call EstimatedState.reset(q0, v0) first")
-        n, rng = self.profile, self._rng
-        imu = synthesize_imu(q, v, *self._prev, self.dt, noise=n.imu, rng=rng)
-        nj = q.size - 7
-        joints = JointReading(
-            q[7:] + n.encoder_noise * rng.standard_normal(nj),
-            v[6:] + n.encoder_velocity_noise * rng.standard_normal(nj),
-        )
-        self._prev = (q.copy(), v.copy())
-        return imu, joints
+        return self.sensors.readings(q, v)
 
     def measure(self, q: np.ndarray, v: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimate ``(q_hat, v_hat)`` from the readings of the true state ``(q, v)`` at ``t`` [s]."""
         imu, joints = self.readings(q, v)
+        return self.update(imu, joints, t)
+
+    def update(self, imu: ImuReading, joints: JointReading, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The estimate ``(q_hat, v_hat)`` from readings taken at ``t`` [s] (the contacts of the schedule
+        then)."""
         contact = np.asarray(self.schedule.contact(t), dtype=bool)
         return self.estimator.update(imu, joints, contact, contact_trust(self.schedule, t))
 

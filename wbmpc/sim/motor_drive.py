@@ -52,12 +52,18 @@ class MotorDrive:
         self.violations = 0
         self.clipped_steps = np.zeros(self.torque_limits.shape, dtype=int)
         self._queue: deque = deque()
-        self._active = None  # (tau_ff, q_des, v_des) in force
+        self._active = None  # (tau_ff, q_des, v_des, kp, kd) in force
         self._step = 0
 
-    def command(self, tau_ff: np.ndarray, q_des: np.ndarray, v_des: np.ndarray) -> None:
-        """Send a command (nj each; [N m], [rad], [rad/s]); it takes effect ``latency_steps`` steps later."""
-        entry = (self._step + self.latency_steps, np.array(tau_ff), np.array(q_des), np.array(v_des))
+    def command(self, tau_ff: np.ndarray, q_des: np.ndarray, v_des: np.ndarray, kp=None, kd=None) -> None:
+        """Send a command (nj each; [N m], [rad], [rad/s]); it takes effect ``latency_steps`` steps later.
+
+        ``kp`` [N m/rad] and ``kd`` [N m s/rad] (nj,) replace the drive's gains for this command, as each
+        ``rt/lowcmd`` message carries its own (``None``: the gains given at construction).
+        """
+        kp = self.kp if kp is None else np.array(kp, dtype=float)
+        kd = self.kd if kd is None else np.array(kd, dtype=float)
+        entry = (self._step + self.latency_steps, np.array(tau_ff), np.array(q_des), np.array(v_des), kp, kd)
         if self._active is None:  # the drive starts on the first command
             self._active = entry[1:]
         self._queue.append(entry)
@@ -71,8 +77,8 @@ class MotorDrive:
         self._step += 1
         if self._active is None:
             return np.zeros_like(self.torque_limits)
-        tau_ff, q_des, v_des = self._active
-        tau = tau_ff + self.kp * (q_des - q_joint) + self.kd * (v_des - v_joint)
+        tau_ff, q_des, v_des, kp, kd = self._active
+        tau = tau_ff + kp * (q_des - q_joint) + kd * (v_des - v_joint)
         over = np.abs(tau) > self.torque_limits * (1 + 1e-6)
         if over.any():
             self.violations += 1
