@@ -4,7 +4,10 @@ each trip reported once; the damping-mode command; argument checks."""
 import numpy as np
 import pytest
 
-from wbmpc.runtime.watchdog import Watchdog, damping_command
+from wbmpc.runtime.robot import MotorCommand
+from wbmpc.runtime.watchdog import Watchdog
+
+damping_command = MotorCommand.damping_mode
 
 
 def test_trips_once_on_plan_age_and_stays_tripped():

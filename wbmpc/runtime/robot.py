@@ -25,6 +25,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from wbmpc import checks
 from wbmpc.estimation import ImuReading, JointReading
 
 __all__ = [
@@ -192,17 +193,22 @@ class MotorCommand:
 
     @classmethod
     def damping_mode(cls, nj: int, kd) -> MotorCommand:
-        """The safe command when plans stop: ``kp = 0``, ``kd > 0``, no feed-forward, zero rate setpoint,
-        so each drive applies ``-kd dq``.
+        """The safe command when plans stop: ``kp = 0``, ``kd > 0`` (scalar or (nj,)), no feed-forward, zero
+        setpoints, so that each drive's law ``tau + kp (q - q_m) + kd (dq - dq_m)`` is ``-kd dq_m``: it only
+        takes energy out.
 
         Raises:
-            ValueError: ``kd`` not > 0 and finite.
+            ValueError: ``nj`` not a positive int, or ``kd`` not finite and > 0 on every joint.
         """
-        kd = np.broadcast_to(np.asarray(kd, dtype=float), (nj,)).copy()
-        if not np.all(np.isfinite(kd)) or np.any(kd <= 0):
-            raise ValueError(f"the damping mode needs kd > 0 on every joint, got {kd}")
+        nj = checks.integer("nj", nj, low=1)
+        try:
+            gains = np.broadcast_to(np.asarray(kd, dtype=float), (nj,)).copy()
+        except (TypeError, ValueError):
+            raise ValueError(f"kd must be a damping > 0 [N m s/rad], scalar or ({nj},), got {kd!r}") from None
+        if not np.all(np.isfinite(gains)) or np.any(gains <= 0):
+            raise ValueError(f"kd must be finite and > 0 on every joint [N m s/rad], got {kd!r}")
         zeros = np.zeros(nj)
-        return cls(zeros, zeros.copy(), zeros.copy(), zeros.copy(), kd, damping=True)
+        return cls(zeros, zeros.copy(), zeros.copy(), zeros.copy(), gains, damping=True)
 
     def problem(self, position_limits=None, velocity_limits=None, torque_limits=None) -> str:
         """Why the command must not be written (``""`` if it may): a non-finite value, negative gains, or a

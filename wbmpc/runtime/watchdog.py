@@ -6,9 +6,10 @@
 :meth:`Watchdog.trip` (a NaN observation, a dead MPC worker). A trip is latched until :meth:`Watchdog.reset`:
 the first reason is kept, recorded once in :attr:`Watchdog.events`, and later causes are not reported.
 
-The damping mode (:func:`damping_command`) is the motor command ``kp = 0``, ``kd > 0``, zero feed-forward
-torque and zero position and rate setpoints: each drive applies ``kd * (0 - dq)``, a torque against the
-joint's motion that slows the robot down (it sinks gently instead of holding a stale plan's torques).
+The damping mode (:meth:`wbmpc.runtime.robot.MotorCommand.damping_mode`) is the motor command
+``kp = 0``, ``kd > 0``, zero feed-forward torque and zero position and rate setpoints: each drive applies
+``kd * (0 - dq)``, a torque against the joint's motion that slows the robot down (it sinks gently instead
+of holding a stale plan's torques).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 
 from wbmpc import checks
 
-__all__ = ["DampingCommand", "Watchdog", "WatchdogState", "damping_command"]
+__all__ = ["Watchdog", "WatchdogState"]
 
 
 @dataclass(frozen=True)
@@ -44,43 +45,9 @@ class WatchdogState:
     consecutive_overruns: int
 
 
-@dataclass(frozen=True)
-class DampingCommand:
-    """The damping-mode command for ``nj`` joints (fields as in a motor command, each (nj,)).
-
-    Attributes:
-        q: Position setpoints [rad] (zero; unused with ``kp = 0``); dq: rate setpoints [rad/s] (zero).
-        tau: Feed-forward torques [N m] (zero); kp: stiffness [N m/rad] (zero); kd: damping [N m s/rad] (> 0).
-    """
-
-    q: np.ndarray
-    dq: np.ndarray
-    tau: np.ndarray
-    kp: np.ndarray
-    kd: np.ndarray
-
-
 def _s(seconds: float) -> str:
     """Seconds for a sentence: two decimals, or three significant digits below 0.1 s."""
     return f"{seconds:.2f}" if abs(seconds) >= 0.1 else f"{seconds:.3g}"
-
-
-def damping_command(nj: int, kd) -> DampingCommand:
-    """The damping mode for ``nj`` joints: ``kp = 0``, ``kd`` (scalar or (nj,)) > 0, zero ``tau``, ``q``
-    and ``dq``, so that each drive's law ``tau + kp (q - q_m) + kd (dq - dq_m)`` is ``-kd dq_m``.
-
-    Raises:
-        ValueError: ``nj`` not a positive int, or ``kd`` not finite and > 0 on every joint ((nj,) or scalar).
-    """
-    nj = checks.integer("nj", nj, low=1)
-    try:
-        gains = np.broadcast_to(np.asarray(kd, dtype=float), (nj,)).copy()
-    except (TypeError, ValueError):
-        raise ValueError(f"kd must be a damping > 0 [N m s/rad], scalar or ({nj},), got {kd!r}") from None
-    if not np.all(np.isfinite(gains)) or np.any(gains <= 0):
-        raise ValueError(f"kd must be finite and > 0 on every joint [N m s/rad], got {kd!r}")
-    zeros = np.zeros(nj)
-    return DampingCommand(q=zeros, dq=zeros.copy(), tau=zeros.copy(), kp=zeros.copy(), kd=gains)
 
 
 class Watchdog:

@@ -1,0 +1,350 @@
+"""A runtime run on the wall clock: the robot, the MPC worker and the 500 Hz controller, each a process.
+
+:func:`run_runtime` starts the robot (the emulated robot in its own process, behind shared memory or DDS)
+and the MPC worker (:mod:`wbmpc.runtime.mpc_worker`), waits until both are ready and the first plan is in,
+then runs the controller loop in this process on absolute 2 ms deadlines (:class:`DeadlineLoop`):
+
+1. read the newest robot observation; estimate (:class:`~wbmpc.runtime.controller.RuntimeController`);
+2. take the newest plan from the worker if there is one (stale, out-of-order and other-epoch plans are
+   refused by the channel and counted);
+3. command the robot at the tick's time from the plan in use, or in damping mode once the watchdog tripped
+   (no new plan for ``max_plan_age`` seconds, ``max_overruns`` overruns in a row, the worker dead, an
+   observation that is not finite, no observation for ``max_observation_gap`` seconds); the reason is
+   said once;
+4. publish the estimate for the worker; record the tick (:class:`~wbmpc.runtime.metrics.RuntimeMetrics`).
+
+The run writes its log (``runtime_log.npz``: per tick the time, estimate, command, plan in use), and a
+summary JSON with the metrics, the worker's and the robot's accounts, and the robot's true forward speed.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from wbmpc.runtime.mpc_worker import MPCRecipe, WorkerStats, run_worker
+from wbmpc.runtime.robot_process import EmulatedRobotSpec, RobotStats, run_emulated_robot
+
+__all__ = ["RuntimeConfig", "run_runtime"]
+
+
+@dataclass
+class RuntimeConfig:
+    """One runtime run.
+
+    Attributes:
+        duration: Wall-clock length of the controlled run [s] (stand 2 s, trot, stand 2 s).
+        speed: Forward speed command of the trot [m/s].
+        robot: ``"emulated"`` (the emulated robot behind shared memory) or ``"dds"`` (behind DDS,
+            ``rt/lowcmd`` / ``rt/lowstate``).
+        domain, interface: DDS domain and network interface (``robot="dds"``).
+        period: Controller period [s]; mpc_rate: the planner's nominal rate [Hz] (its delay bookkeeping).
+        max_plan_age: Watchdog limit on the age of the plan in use [s]; max_overruns: overrun ticks in a row
+            that trip it; max_observation_gap: seconds without a robot observation that trip it.
+        nodes, compiled: The MPC.
+        faults: Faults to inject (keys ``kill_worker_at``, ``stall_at``, ``stall_for``), for tests.
+        ready_timeout: Seconds to wait for the worker's MPC (a first compile takes minutes).
+    """
+
+    duration: float = 10.0
+    speed: float = 0.2
+    robot: str = "emulated"
+    domain: int = 42
+    interface: str = "lo"
+    period: float = 0.002
+    mpc_rate: float = 80.0
+    max_plan_age: float = 0.15
+    max_overruns: int = 5
+    max_observation_gap: float = 0.02
+    nodes: int = 15
+    compiled: bool = True
+    faults: dict = field(default_factory=dict)
+    ready_timeout: float = 900.0
+
+    def __post_init__(self):
+        if self.robot not in ("emulated", "dds"):
+            raise ValueError(f"RuntimeConfig.robot must be 'emulated' or 'dds', got {self.robot!r}")
+        if not (np.isfinite(self.duration) and self.duration >= 4.5):
+            raise ValueError(
+                f"RuntimeConfig.duration must be >= 4.5 s (stand 2, trot, stand 2), got {self.duration}"
+            )
+        if not (np.isfinite(self.speed) and abs(self.speed) <= 1.0):
+            raise ValueError(f"RuntimeConfig.speed must be within +-1 m/s, got {self.speed}")
+
+    @property
+    def gait(self) -> str:
+        return f"stand:2,trot@{self.speed:g}:{self.duration - 4:g},stand:2"
+
+
+def _loop_config(config: RuntimeConfig, hardware):
+    from wbmpc.control.command_schedule import CommandSchedule
+    from wbmpc.ocp.gait import parse_gait_schedule
+    from wbmpc.sim.presets import hardware_config
+
+    schedule = parse_gait_schedule(config.gait)
+    commands = CommandSchedule(ee_velocity_frame="heading", gait=schedule)
+    return hardware_config(
+        hardware, commands=commands, delay="measured", duration=config.duration, mpc_rate=config.mpc_rate
+    )
+
+
+def run_runtime(config: RuntimeConfig, output: str | Path | None = None, progress: bool = True) -> dict:
+    """Run the robot, the MPC worker and the controller on the wall clock; returns the summary.
+
+    Raises:
+        RuntimeError: the worker or the robot did not come up (their error is in the message).
+    """
+    from wbmpc.control.push_recovery import PushRecovery
+    from wbmpc.model.robot import load_b1_z1
+    from wbmpc.ocp.gait import parse_gait_schedule
+    from wbmpc.runtime.controller import RuntimeController
+    from wbmpc.runtime.shared import ObservationChannel, PlanChannel
+    from wbmpc.runtime.wire import Wire
+
+    robot = load_b1_z1()
+    spec = EmulatedRobotSpec()
+    loop_config = _loop_config(config, spec.profile())
+    recipe = MPCRecipe(gait=config.gait, nodes=config.nodes, compiled=config.compiled)
+    ctx = mp.get_context("spawn")
+    stop, worker_ready, robot_ready = ctx.Event(), ctx.Event(), ctx.Event()
+    worker_stats, robot_stats = ctx.Queue(), ctx.Queue()
+    plans = PlanChannel.create(recipe.plan_layout(robot))
+    observations = ObservationChannel.create(robot.nq, robot.nv)
+    wire, state_slot, command_slot = Wire.create(robot.nj)
+    stall = None
+    if "stall_at" in config.faults:
+        stall = (config.faults["stall_at"], config.faults.get("stall_for", 0.3))
+    worker = ctx.Process(
+        target=run_worker,
+        args=(
+            recipe,
+            loop_config,
+            robot.q_nominal,
+            observations.description,
+            plans.description,
+            worker_ready,
+            stop,
+            worker_stats,
+            stall,
+        ),
+        name="wbmpc-mpc-worker",
+        daemon=True,
+    )
+    robot_process = ctx.Process(
+        target=run_emulated_robot,
+        args=(spec, _PortFactory(config, wire), robot_ready, stop, robot_stats),
+        name="wbmpc-emulated-robot",
+        daemon=True,
+    )
+    worker.start()
+    robot_process.start()
+    client = None
+    try:
+        _wait(worker_ready, worker, worker_stats, config.ready_timeout, "MPC worker")
+        _wait(robot_ready, robot_process, robot_stats, 60.0, "emulated robot")
+        client = _client(config, wire, robot)
+        gait = parse_gait_schedule(config.gait)
+        contacts = PushRecovery(robot)
+        controller = RuntimeController(robot, loop_config, lambda times: contacts.contact(times, gait))
+        summary = _control(config, robot, client, controller, plans, observations, worker, progress)
+    finally:
+        stop.set()
+        worker.join(10)
+        robot_process.join(10)
+        for process in (worker, robot_process):
+            if process.is_alive():
+                process.kill()
+        if client is not None:
+            client.close()
+        for slot in (plans, observations, state_slot, command_slot):
+            slot.close()
+            slot.unlink()
+    summary["worker"] = _drain(worker_stats, WorkerStats)
+    summary["robot"] = _robot_summary(_drain(robot_stats, RobotStats), config)
+    if output is not None:
+        output = Path(output)
+        output.mkdir(parents=True, exist_ok=True)
+        log = summary.pop("_log")
+        np.savez_compressed(output / "runtime_log.npz", **log)
+        (output / "summary.json").write_text(json.dumps(summary, indent=1, default=_json))
+    else:
+        summary.pop("_log")
+    return summary
+
+
+class _PortFactory:
+    """Builds the robot's port in the robot's process (picklable)."""
+
+    def __init__(self, config: RuntimeConfig, wire):
+        self.kind, self.domain, self.interface, self.wire = (
+            config.robot,
+            config.domain,
+            config.interface,
+            wire,
+        )
+
+    def __call__(self):
+        from wbmpc.runtime.wire import SharedMemoryPort
+
+        if self.kind == "emulated":
+            return SharedMemoryPort(self.wire)
+        from wbmpc.runtime.dds_robot import DdsRobotPort
+
+        return DdsRobotPort(self.domain, self.interface)
+
+
+def _client(config: RuntimeConfig, wire, robot):
+    from wbmpc.runtime.wire import SharedMemoryRobot
+
+    if config.robot == "emulated":
+        return SharedMemoryRobot(wire, robot.joint_names)
+    from wbmpc.runtime.dds_robot import DdsRobot
+
+    return DdsRobot(robot, config.domain, config.interface)
+
+
+def _wait(event, process, queue, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not event.wait(0.1):
+        if not process.is_alive() or time.monotonic() > deadline:
+            stats = _drain(queue, dict)
+            errors = "\n".join(stats.get("errors", [])) if isinstance(stats, dict) else ""
+            raise RuntimeError(f"the {what} did not start within {timeout:g} s:\n{errors}")
+
+
+def _drain(queue, kind):
+    try:
+        stats = queue.get(timeout=5.0)
+    except Exception:
+        return {"errors": ["no account received (the process was killed?)"]}
+    return asdict(stats) if hasattr(stats, "__dataclass_fields__") else stats
+
+
+def _robot_summary(stats: dict, config: RuntimeConfig) -> dict:
+    t, base = np.asarray(stats.pop("t", [])), np.asarray(stats.pop("base", []))
+    out = dict(stats)
+    if len(t) > 10:
+        trot = (t > 2.5) & (t < config.duration - 2.0)
+        if trot.sum() > 10:
+            ts, xs = t[trot], base[trot, 0]
+            out["forward_speed_mps"] = float(np.polyfit(ts, xs, 1)[0])
+        out["final_base"] = base[-1].tolist()
+    return out
+
+
+def _control(config, robot, client, controller, plans, observations, worker, progress) -> dict:
+    from wbmpc.runtime.clock import DeadlineLoop
+    from wbmpc.runtime.metrics import RuntimeMetrics
+    from wbmpc.runtime.watchdog import Watchdog
+
+    metrics = RuntimeMetrics()
+    watchdog = Watchdog(config.max_plan_age, config.max_overruns, startup_grace_s=5.0)
+    epoch = 1
+    # The first observation: the robot at rest on its stand; the estimator starts at the nominal pose with
+    # the measured joints.
+    first = _first_observation(client, 5.0)
+    q0 = robot.q_nominal.copy()
+    q0[7:] = first.q
+    controller.reset(q0, np.zeros(robot.nv))
+    t0 = time.monotonic()
+    observations.publish(0.0, q0, np.zeros(robot.nv), epoch=epoch)
+    plan_seq, plan_meta, killed = 0, None, False
+    deadline = time.monotonic() + 30.0
+    while (got := plans.latest(plan_seq, epoch)) is None:  # the first plan, before the clock starts
+        if time.monotonic() > deadline or not worker.is_alive():
+            raise RuntimeError("no first plan from the MPC worker within 30 s")
+        time.sleep(0.001)
+    controller.offer(got[0])
+    plan_seq, plan_meta = got[1].seq, got[1]
+    metrics.plan_received(plan_seq, plan_meta.observation_time)
+    n_ticks = round(config.duration / config.period)
+    log = {k: [] for k in ("t", "q_hat", "v_hat", "tau", "q_cmd", "damping", "plan_seq", "lateness")}
+    loop = DeadlineLoop(config.period)
+    last_obs_time, last_wake, said = 0.0, None, set()
+    for _ in range(n_ticks):
+        tick = loop.wait_next()
+        now = (tick.wake_ns / 1e9) - t0
+        if "kill_worker_at" in config.faults and not killed and now >= config.faults["kill_worker_at"]:
+            worker.kill()
+            killed = True
+        observation = client.read()
+        if observation is not None:
+            observation.stamp -= t0  # the run's clock (both on CLOCK_MONOTONIC)
+            problem = controller.estimate(observation)
+            if problem and "not finite" in problem:
+                watchdog.trip(f"the robot sent an unusable observation: {problem}", now)
+            elif not problem:
+                last_obs_time = now
+        if now - last_obs_time > config.max_observation_gap:
+            watchdog.trip(f"no observation from the robot for {now - last_obs_time:.3f} s", now)
+        got = plans.latest(plan_seq, epoch)
+        if got is not None:
+            controller.offer(got[0])
+            plan_seq, plan_meta = got[1].seq, got[1]
+            metrics.plan_received(plan_seq, plan_meta.observation_time)
+        if not worker.is_alive():
+            watchdog.trip("the MPC worker died", now)
+        state = watchdog.check(now, plan_meta.observation_time, tick.overrun)
+        if state.tripped:
+            controller.enter_damping()
+            if state.reason not in said:
+                said.add(state.reason)
+                metrics.watchdog_event(now, state.reason)
+                print(f"[wbmpc.runtime] t={now:.3f} s: damping mode: {state.reason}", flush=True)
+        command = controller.command(now)
+        client.write(command)
+        if not command.damping:
+            metrics.plan_used(plan_seq, now)
+        if not controller.damping:
+            observations.publish(now, controller.q_hat, controller.v_hat, epoch=epoch)
+        compute = loop.tick_done()
+        period = None if last_wake is None else (tick.wake_ns - last_wake) / 1e9
+        last_wake = tick.wake_ns
+        metrics.tick(
+            lateness_s=tick.lateness_s,
+            overrun=tick.overrun,
+            compute_s=compute,
+            period_s=period,
+            plan_age_s=state.plan_age_s,
+            skipped=tick.skipped,
+        )
+        log["t"].append(now)
+        log["q_hat"].append(controller.q_hat)
+        log["v_hat"].append(controller.v_hat)
+        log["tau"].append(command.tau)
+        log["q_cmd"].append(command.q)
+        log["damping"].append(command.damping)
+        log["plan_seq"].append(plan_seq)
+        log["lateness"].append(tick.lateness_s)
+    metrics.plan_rejected("stale", plans.rejected_stale)
+    metrics.plan_rejected("epoch", plans.rejected_epoch)
+    summary = metrics.summary()
+    summary["config"] = asdict(config)
+    summary["controller_problems"] = [r for _, r in controller.problems[:20]]
+    summary["controller_problem_count"] = len(controller.problems)
+    summary["clipped"] = dict(controller.clipped)
+    summary["damping"] = bool(controller.damping)
+    summary["_log"] = {k: np.asarray(v) for k, v in log.items()}
+    return summary
+
+
+def _first_observation(client, timeout: float):
+    deadline = time.monotonic() + timeout
+    while (observation := client.read()) is None:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"no observation from the robot within {timeout:g} s")
+        time.sleep(0.001)
+    return observation
+
+
+def _json(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
