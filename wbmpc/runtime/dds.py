@@ -27,13 +27,29 @@ QoS, chosen to match whatever Unitree's SDK offers or asks for: readers are best
 last 1 (the Python SDK's writers use the DDS default, reliable, and a reliable writer matches both kinds of
 readers; with keep-last-1 history a write does not wait for a slow reader: the new sample replaces the
 unacknowledged one).
+
+Serialized samples. :func:`write_serialized` and :meth:`DdsEndpoint.take_serialized` hand cyclonedds the
+bytes of a sample (encapsulation header included) and take them back with their ``SampleInfo``: what
+``DataWriter.write`` does after ``sample.serialize()`` and ``DataReader.take`` before ``deserialize``
+(cyclonedds 11's ``ddspy_write`` / ``ddspy_take``), without a Python object in between, for the
+fixed-layout codecs of :mod:`wbmpc.runtime.cdr`.
 """
 
 import socket
 import threading
 import time
 
-from cyclonedds.core import InstanceState, Policy, Qos, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds._clayer import ddspy_take, ddspy_write
+from cyclonedds.core import (
+    DDSException,
+    InstanceState,
+    Policy,
+    Qos,
+    ReadCondition,
+    SampleState,
+    ViewState,
+    WaitSet,
+)
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
@@ -44,6 +60,8 @@ DEFAULT_DOMAIN = 42
 MAX_DOMAIN = 232
 MAX_PARTICIPANTS_PER_HOST = 20
 LOOPBACK_INTERFACES = ("lo", "lo0")
+
+_ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
 
 _domains_lock = threading.Lock()
 _domains: dict[int, list] = {}  # domain id -> [Domain, interface, number of endpoints using it]
@@ -76,6 +94,20 @@ def cyclonedds_config(domain: int, interface: str) -> str:
             f"<MaxAutoParticipantIndex>{MAX_PARTICIPANTS_PER_HOST - 1}</MaxAutoParticipantIndex></Discovery>"
         )
     return f'<CycloneDDS><Domain id="{domain}"><General>{general}</General>{discovery}</Domain></CycloneDDS>'
+
+
+def write_serialized(writer: DataWriter, data: bytes) -> None:
+    """Write one serialized sample (its 4-byte encapsulation header first, e.g. from
+    :meth:`wbmpc.runtime.cdr.FixedCdr.encode`) as ``writer.write`` would write the sample.
+
+    Raises:
+        DDSException: cyclonedds refused the write.
+    """
+    if len(data) % 4:
+        data = data.ljust((len(data) + 3) & ~3, b"\0")  # as DataWriter.write pads it
+    ret = ddspy_write(writer._ref, data)
+    if ret < 0:
+        raise DDSException(ret, f"Occurred while writing a serialized sample in {writer!r}")
 
 
 def _acquire_domain(domain: int, interface: str) -> None:
@@ -171,6 +203,30 @@ class DdsEndpoint:
             remaining = deadline - time.monotonic()
             if remaining <= 0.0:
                 return None
+            waitset.wait(duration(seconds=remaining))
+
+    def take_serialized(self, reader: DataReader, timeout_s: float = 0.0) -> list:
+        """Take every queued sample of ``reader`` serialized, oldest first, waiting up to ``timeout_s`` [s]
+        for the first.
+
+        Returns:
+            ``[(data, info), ...]``: each sample's bytes (encapsulation header included) and its
+            ``cyclonedds.internal.SampleInfo`` (``publication_handle`` names the writer); dispose and
+            unregister notifications are dropped. Empty if nothing arrived within the timeout.
+        """
+        self._check_open()
+        deadline = time.monotonic() + max(timeout_s, 0.0)
+        waitset, _, depth = self._waitsets[id(reader)]
+        while True:
+            ret = ddspy_take(reader._ref, _ANY_SAMPLE, depth)
+            if isinstance(ret, int):
+                raise DDSException(ret, f"Occurred while taking serialized samples in {reader!r}")
+            samples = [(data, info) for data, info in ret if info.valid_data]
+            if samples:
+                return samples
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                return samples
             waitset.wait(duration(seconds=remaining))
 
     def wait_for_match(self, entity: DataWriter | DataReader, timeout_s: float, count: int = 1) -> bool:

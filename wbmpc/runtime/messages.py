@@ -32,14 +32,15 @@ UDP SDK, not DDS, so wbmpc's emulated robot publishes the arm joints on ``rt/arm
 which slot is which joint); a real Z1 would need a bridge from these topics to its UDP SDK.
 """
 
-import struct
-import typing
 import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 from cyclonedds.idl import IdlStruct, types
 from cyclonedds.idl import annotations as annotate
+
+from wbmpc.runtime import cdr
+from wbmpc.runtime.cdr import struct_dtype as struct_dtype  # re-exported: the C layout of a type
 
 LEG_CMD_TOPIC = "rt/lowcmd"
 LEG_STATE_TOPIC = "rt/lowstate"
@@ -181,107 +182,27 @@ class LowState_(IdlStruct, typename="unitree_go.msg.dds_.LowState_"):  # noqa: N
     crc: types.uint32 = 0
 
 
-# The C struct layout, derived from the IDL classes above so that the two cannot drift apart.
+# The C struct layout, derived from the IDL classes above so that the two cannot drift apart
+# (wbmpc.runtime.cdr); the fast CDR codecs are installed on LowCmd_ and LowState_ below.
 
-_PRIMITIVES = {"byte": "u1", "uint8": "u1", "int8": "i1", "int16": "<i2", "uint16": "<u2"}
-_PRIMITIVES.update(int32="<i4", uint32="<u4", float32="<f4")
-# member kinds: a scalar, an array of scalars, a struct, an array of structs
-_SCALAR, _SCALARS, _STRUCT, _STRUCTS = range(4)
-
-
-def _members(cls: type) -> list[tuple[str, int, object, int]]:
-    """(name, kind, element (numpy dtype or IDL class), array length or 1) of each member, in IDL order."""
-    hints = typing.get_type_hints(cls, include_extras=True)
-    out = []
-    for name in cls.__dataclass_fields__:
-        args = typing.get_args(hints[name])
-        array = args[1] if len(args) == 2 and isinstance(args[1], types.array) else None
-        element = array.subtype if array else hints[name]
-        if isinstance(element, type) and issubclass(element, IdlStruct):
-            kind = _STRUCTS if array else _STRUCT
-        else:
-            kind = _SCALARS if array else _SCALAR
-            element = np.dtype(_PRIMITIVES[typing.get_args(element)[1]])
-        out.append((name, kind, element, array.length if array else 1))
-    return out
-
-
-def struct_dtype(cls: type) -> np.dtype:
-    """The C/C++ layout of an IDL struct as a numpy dtype: members in IDL order, natural alignment.
-
-    ``align=True`` does what a C compiler does: each member at a multiple of its own alignment, the struct
-    padded to a multiple of its largest member's alignment.
-    """
-    fields = []
-    for name, kind, element, length in _members(cls):
-        dtype = struct_dtype(element) if kind in (_STRUCT, _STRUCTS) else element
-        fields.append((name, dtype, (length,)) if kind in (_SCALARS, _STRUCTS) else (name, dtype))
-    return np.dtype(fields, align=True)
-
-
-def _struct_format(dtype: np.dtype) -> str:
-    """The :mod:`struct` format of a structured dtype, its padding spelled out as pad bytes (``x``)."""
-    parts, position = [], 0
-    for name in dtype.names:
-        member, offset = dtype.fields[name][:2]
-        base, shape = member.subdtype if member.subdtype else (member, ())
-        count = int(np.prod(shape))
-        parts.append("x" * (offset - position))
-        parts.append((_struct_format(base) if base.names else base.char) * count)
-        position = offset + member.itemsize
-    return "".join(parts) + "x" * (dtype.itemsize - position)
-
-
-def _flattener(cls: type):
-    """A function appending an instance's values to a list in IDL (= struct format) order."""
-    steps = [
-        (name, kind, _flattener(element) if kind in (_STRUCT, _STRUCTS) else None)
-        for name, kind, element, _ in _members(cls)
-    ]
-
-    def flatten(obj, out: list) -> None:
-        for name, kind, sub in steps:
-            value = getattr(obj, name)
-            if kind == _SCALAR:
-                out.append(value)
-            elif kind == _SCALARS:
-                out.extend(value)
-            elif kind == _STRUCT:
-                sub(value, out)
-            else:
-                for item in value:
-                    sub(item, out)
-
-    return flatten
-
-
-LOW_CMD_DTYPE = struct_dtype(LowCmd_)
-LOW_STATE_DTYPE = struct_dtype(LowState_)
+# DataWriter.write / DataReader.take of these two types now use the fixed-layout codecs (about 20 times
+# faster than cyclonedds's generic serializer); their numpy records skip Python objects altogether.
+LOW_CMD_CDR = cdr.install(LowCmd_)
+LOW_STATE_CDR = cdr.install(LowState_)
+LOW_CMD_DTYPE = LOW_CMD_CDR.dtype  # = struct_dtype(LowCmd_)
+LOW_STATE_DTYPE = LOW_STATE_CDR.dtype
 LOW_CMD_SIZE = LOW_CMD_DTYPE.itemsize  # 812 bytes
 LOW_STATE_SIZE = LOW_STATE_DTYPE.itemsize  # 1180 bytes
-_LOW_CMD_STRUCT = struct.Struct("<" + _struct_format(LOW_CMD_DTYPE))
-_LOW_STATE_STRUCT = struct.Struct("<" + _struct_format(LOW_STATE_DTYPE))
-_FLATTEN_LOW_CMD = _flattener(LowCmd_)
-_FLATTEN_LOW_STATE = _flattener(LowState_)
-
-
-def _pack(msg: IdlStruct, packer: struct.Struct, flatten) -> bytes:
-    values: list = []
-    flatten(msg, values)
-    try:
-        return packer.pack(*values)  # pad bytes are zero, as in the SDK's value-initialised structs
-    except struct.error as exc:
-        raise ValueError(f"{type(msg).__name__} has a field out of its IDL type's range: {exc}") from exc
 
 
 def pack_low_cmd(msg: LowCmd_) -> bytes:
     """The ``LowCmd_`` as the 812 bytes of the SDK's C++ struct (little endian, zero padding)."""
-    return _pack(msg, _LOW_CMD_STRUCT, _FLATTEN_LOW_CMD)
+    return LOW_CMD_CDR.pack(msg)  # pad bytes are zero, as in the SDK's value-initialised structs
 
 
 def pack_low_state(msg: LowState_) -> bytes:
     """The ``LowState_`` as the 1180 bytes of the SDK's C++ struct (little endian, zero padding)."""
-    return _pack(msg, _LOW_STATE_STRUCT, _FLATTEN_LOW_STATE)
+    return LOW_STATE_CDR.pack(msg)
 
 
 # CRC
@@ -308,30 +229,46 @@ def crc32_mpeg2(words: np.ndarray) -> int:
     return int(f"{reflected:032b}"[::-1], 2)
 
 
-def _words(msg: LowCmd_ | LowState_) -> np.ndarray:
+def _is_record(dtype: np.dtype) -> bool:
+    # identity first: comparing structured dtypes costs microseconds
+    return dtype is LOW_CMD_DTYPE or dtype is LOW_STATE_DTYPE or dtype in (LOW_CMD_DTYPE, LOW_STATE_DTYPE)
+
+
+def _words(msg) -> np.ndarray:
+    if isinstance(msg, np.ndarray) and msg.size == 1 and _is_record(msg.dtype):
+        return np.frombuffer(msg, "<u4")[:-1]  # a C-layout record: its memory is the struct
     if isinstance(msg, LowCmd_):
         raw = pack_low_cmd(msg)
     elif isinstance(msg, LowState_):
         raw = pack_low_state(msg)
     else:
-        raise TypeError(f"expected a LowCmd_ or LowState_, got {type(msg).__name__}")
+        raise TypeError(f"expected a LowCmd_ or LowState_ (or its C-layout record), got {type(msg).__name__}")
     return np.frombuffer(raw, dtype="<u4")[:-1]  # every word but the last, the crc field
 
 
-def low_cmd_crc(msg: LowCmd_ | LowState_) -> int:
-    """The CRC the robot expects in ``msg.crc`` (a ``LowCmd_``; a ``LowState_`` is checked the same way)."""
+def low_cmd_crc(msg) -> int:
+    """The CRC the robot expects in ``msg.crc`` (a ``LowCmd_``; a ``LowState_`` is checked the same way).
+
+    ``msg`` may also be a C-layout record (a 0-d array of :data:`LOW_CMD_DTYPE` or :data:`LOW_STATE_DTYPE`,
+    as :meth:`~wbmpc.runtime.cdr.FixedCdr.decode` returns): then no packing is needed (about 6 us).
+    """
     return crc32_mpeg2(_words(msg))
 
 
-def stamp_crc(msg: LowCmd_ | LowState_) -> LowCmd_ | LowState_:
-    """Set ``msg.crc`` to the message's CRC (call last, after every other field); returns ``msg``."""
-    msg.crc = low_cmd_crc(msg)
+def stamp_crc(msg):
+    """Set ``msg.crc`` (a record's ``"crc"`` field) to the message's CRC (call last, after every other
+    field); returns ``msg``."""
+    if isinstance(msg, np.ndarray):
+        msg["crc"] = low_cmd_crc(msg)
+    else:
+        msg.crc = low_cmd_crc(msg)
     return msg
 
 
-def crc_ok(msg: LowCmd_ | LowState_) -> bool:
-    """Whether ``msg.crc`` matches the rest of the message."""
-    return msg.crc == low_cmd_crc(msg)
+def crc_ok(msg) -> bool:
+    """Whether ``msg.crc`` (a record's ``"crc"`` field) matches the rest of the message."""
+    crc = int(msg["crc"]) if isinstance(msg, np.ndarray) else msg.crc
+    return crc == low_cmd_crc(msg)
 
 
 # Construction and numpy converters
