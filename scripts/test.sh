@@ -7,10 +7,16 @@ source "$(dirname "${BASH_SOURCE[0]}")/env.sh"   # cd's to the repo root and act
 export WBMPC_QUICK=1
 export MPLBACKEND=Agg
 
-paths=(tests)
+# Notebooks first: they are the longest files, and the workers share out the short tests after them.
 # Only pass notebooks/ if it exists, otherwise pytest errors with "file or directory not found".
+paths=()
 if [ -d notebooks ]; then
     paths+=(notebooks)
 fi
+paths+=(tests)
 
-exec python -m pytest "${paths[@]}" --nbmake --nbmake-timeout=600 -p no:cacheprovider -q "$@"
+# One pytest worker per core (pytest-xdist), each test file on one worker so that a file's module fixtures
+# (an MPC, a compiled solver) are built once. WBMPC_TEST_WORKERS=0 runs in this process.
+workers="${WBMPC_TEST_WORKERS:-auto}"
+exec python -m pytest "${paths[@]}" --nbmake --nbmake-timeout=600 -p no:cacheprovider -q \
+    -n "$workers" --dist loadfile "$@"

@@ -31,6 +31,9 @@ from wbmpc.sim.loop_config import ClosedLoopConfig
 
 __all__ = ["RuntimeController"]
 
+#: A tick this far behind the last one is a restarted robot, not a message out of order.
+RESTART_WINDOW = 50
+
 #: Damping [N m s/rad] of the damping mode (Unitree's own examples damp with kd of 1-5).
 DAMPING_KD = 3.0
 
@@ -103,11 +106,16 @@ class RuntimeController:
     def estimate(self, observation: Observation) -> str:
         """Feed one observation to the estimator; returns why it was refused, or ``""``.
 
-        Refused: a non-finite field or a wrong shape, a sequence number not newer than the last one.
+        Refused: a non-finite field or a wrong shape, a sequence number not newer than the last one (a
+        duplicate or a message out of order), one more than :data:`RESTART_WINDOW` behind it (the robot
+        restarted: the reason says so).
         """
         problem = observation.problem()
-        if not problem and self._last_seq is not None and observation.seq <= self._last_seq:
-            problem = f"observation seq {observation.seq} not newer than {self._last_seq} (stale)"
+        last = self._last_seq
+        if not problem and last is not None and observation.seq < last - RESTART_WINDOW:
+            problem = f"the robot restarted: its tick went back from {last} to {observation.seq}"
+        elif not problem and last is not None and observation.seq <= last:
+            problem = f"observation seq {observation.seq} not newer than {last} (stale)"
         if problem:
             self.problems.append((observation.stamp, problem))
             return problem

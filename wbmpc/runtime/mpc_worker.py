@@ -23,6 +23,9 @@ import numpy as np
 
 __all__ = ["MPCRecipe", "WorkerStats", "run_worker"]
 
+#: Solves from the first observation of an epoch before the plan that is published (warm start, caches).
+WARMUP_SOLVES = 3
+
 
 @dataclass(frozen=True)
 class MPCRecipe:
@@ -103,7 +106,9 @@ class WorkerStats:
     errors: list = field(default_factory=list)
 
 
-def run_worker(recipe: MPCRecipe, loop_config, q0, observations, plans, ready, stop, stats_queue, stall=None):
+def run_worker(
+    recipe: MPCRecipe, loop_config, q0, observations, plans, ready, stop, stats_queue, stall=None, nice=5
+):
     """The worker process's body (the target of a spawned ``multiprocessing.Process``).
 
     Args:
@@ -116,6 +121,8 @@ def run_worker(recipe: MPCRecipe, loop_config, q0, observations, plans, ready, s
         ready: Event set once the MPC is built; stop: event that ends the loop.
         stats_queue: Queue the :class:`WorkerStats` is put on at the end.
         stall: Optional ``(start_s, duration_s)``: the solver stalls once, for fault tests.
+        nice: Niceness added to the worker (the scheduler lets the controller's short ticks run first on
+            a machine with fewer cores than processes; raising it needs no privilege).
     """
     from wbmpc.runtime.shared import ObservationChannel, PlanChannel, SlotDescription
     from wbmpc.sim.planner import Planner
@@ -127,6 +134,8 @@ def run_worker(recipe: MPCRecipe, loop_config, q0, observations, plans, ready, s
     stats = WorkerStats()
     parent = os.getppid()
     try:
+        if nice:
+            os.nice(nice)  # the controller's loop must get a core the moment it wakes
         mpc = recipe.build()
         planner = Planner(mpc, loop_config, np.asarray(q0, dtype=float))
         ready.set()
@@ -141,10 +150,12 @@ def run_worker(recipe: MPCRecipe, loop_config, q0, observations, plans, ready, s
                 continue
             stats.skipped += max(0, observation.seq - last_seq - 1)
             last_seq = observation.seq
-            if observation.epoch != epoch:  # the controller reset: start over
+            if observation.epoch != epoch:  # the controller reset: start over, warm
                 epoch, plan_in_use, first = observation.epoch, None, True
                 mpc.reset()
                 planner.reset()
+                for _ in range(WARMUP_SOLVES):  # the first solves of a process are slow (caches, pages)
+                    planner.plan(observation.q, observation.v, observation.t, None, record_delay=False)
             if stall is not None and not stalled and observation.t >= stall[0]:
                 stalled = True
                 time.sleep(stall[1])

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wbmpc.runtime.faults import Faults
 from wbmpc.runtime.mpc_worker import MPCRecipe, WorkerStats, run_worker
 from wbmpc.runtime.robot_process import EmulatedRobotSpec, RobotStats, run_emulated_robot
 
@@ -47,7 +48,8 @@ class RuntimeConfig:
         max_plan_age: Watchdog limit on the age of the plan in use [s]; max_overruns: overrun ticks in a row
             that trip it; max_observation_gap: seconds without a robot observation that trip it.
         nodes, compiled: The MPC.
-        faults: Faults to inject (keys ``kill_worker_at``, ``stall_at``, ``stall_for``), for tests.
+        faults: Faults to inject (:class:`~wbmpc.runtime.faults.Faults`), for tests.
+        gait: The gait schedule; ``None``: stand 2 s, trot at ``speed``, stand 2 s over ``duration``.
         ready_timeout: Seconds to wait for the worker's MPC (a first compile takes minutes).
     """
 
@@ -63,13 +65,25 @@ class RuntimeConfig:
     max_observation_gap: float = 0.02
     nodes: int = 15
     compiled: bool = True
-    faults: dict = field(default_factory=dict)
+    faults: Faults = field(default_factory=Faults)
     ready_timeout: float = 900.0
+    gait_schedule: str | None = None
 
     def __post_init__(self):
+        if not isinstance(self.faults, Faults):
+            raise ValueError(f"RuntimeConfig.faults must be a Faults, got {self.faults!r}")
         if self.robot not in ("emulated", "dds"):
             raise ValueError(f"RuntimeConfig.robot must be 'emulated' or 'dds', got {self.robot!r}")
-        if not (np.isfinite(self.duration) and self.duration >= 4.5):
+        if self.robot == "dds":
+            from wbmpc.runtime.dds import check_domain, check_interface
+
+            check_domain(self.domain)
+            check_interface(self.interface)
+        if self.gait_schedule is not None:
+            from wbmpc.ocp.gait import parse_gait_schedule
+
+            parse_gait_schedule(self.gait_schedule)  # raises on a bad schedule, before anything starts
+        elif not (np.isfinite(self.duration) and self.duration >= 4.5):
             raise ValueError(
                 f"RuntimeConfig.duration must be >= 4.5 s (stand 2, trot, stand 2), got {self.duration}"
             )
@@ -78,6 +92,8 @@ class RuntimeConfig:
 
     @property
     def gait(self) -> str:
+        if self.gait_schedule is not None:
+            return self.gait_schedule
         return f"stand:2,trot@{self.speed:g}:{self.duration - 4:g},stand:2"
 
 
@@ -102,6 +118,7 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None, progres
     from wbmpc.control.push_recovery import PushRecovery
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.ocp.gait import parse_gait_schedule
+    from wbmpc.runtime.control_loop import ControlLoop
     from wbmpc.runtime.controller import RuntimeController
     from wbmpc.runtime.shared import ObservationChannel, PlanChannel
     from wbmpc.runtime.wire import Wire
@@ -111,39 +128,44 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None, progres
     loop_config = _loop_config(config, spec.profile())
     recipe = MPCRecipe(gait=config.gait, nodes=config.nodes, compiled=config.compiled)
     ctx = mp.get_context("spawn")
-    stop, worker_ready, robot_ready = ctx.Event(), ctx.Event(), ctx.Event()
+    stop, worker_ready = ctx.Event(), ctx.Event()
     worker_stats, robot_stats = ctx.Queue(), ctx.Queue()
     plans = PlanChannel.create(recipe.plan_layout(robot))
     observations = ObservationChannel.create(robot.nq, robot.nv)
     wire, state_slot, command_slot = Wire.create(robot.nj)
-    stall = None
-    if "stall_at" in config.faults:
-        stall = (config.faults["stall_at"], config.faults.get("stall_for", 0.3))
+    faults = config.faults
+    stall = None if faults.stall_at is None else (faults.stall_at, faults.stall_for)
+    worker_args = (recipe, loop_config, robot.q_nominal, observations.description, plans.description)
     worker = ctx.Process(
         target=run_worker,
-        args=(
-            recipe,
-            loop_config,
-            robot.q_nominal,
-            observations.description,
-            plans.description,
-            worker_ready,
-            stop,
-            worker_stats,
-            stall,
-        ),
+        args=(*worker_args, worker_ready, stop, worker_stats, stall),
         name="wbmpc-mpc-worker",
         daemon=True,
     )
-    robot_process = ctx.Process(
-        target=run_emulated_robot,
-        args=(spec, _PortFactory(config, wire), robot_ready, stop, robot_stats),
-        name="wbmpc-emulated-robot",
-        daemon=True,
-    )
+    robots: list = []
+
+    def start_robot():
+        ready = ctx.Event()
+        process = ctx.Process(
+            target=run_emulated_robot,
+            args=(spec, _PortFactory(config, wire), ready, stop, robot_stats),
+            name="wbmpc-emulated-robot",
+            daemon=True,
+        )
+        process.start()
+        robots.append(process)
+        return ready, process
+
+    def restart_robot():
+        robots[-1].kill()  # the robot's computer reboots: its state and tick counter start over
+        robots[-1].join(5)
+        start_robot()
+
     worker.start()
-    robot_process.start()
+    robot_ready, robot_process = start_robot()
     client = None
+    log: dict = {}
+    summary: dict = {}
     try:
         _wait(worker_ready, worker, worker_stats, config.ready_timeout, "MPC worker")
         _wait(robot_ready, robot_process, robot_stats, 60.0, "emulated robot")
@@ -151,12 +173,13 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None, progres
         gait = parse_gait_schedule(config.gait)
         contacts = PushRecovery(robot)
         controller = RuntimeController(robot, loop_config, lambda times: contacts.contact(times, gait))
-        summary = _control(config, robot, client, controller, plans, observations, worker, progress)
+        loop = ControlLoop(config, robot, client, controller, plans, observations, worker, restart_robot)
+        log = loop.log
+        summary = loop.run()
     finally:
         stop.set()
-        worker.join(10)
-        robot_process.join(10)
-        for process in (worker, robot_process):
+        for process in (worker, *robots):
+            process.join(10)
             if process.is_alive():
                 process.kill()
         if client is not None:
@@ -164,16 +187,14 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None, progres
         for slot in (plans, observations, state_slot, command_slot):
             slot.close()
             slot.unlink()
+        if output is not None and log:  # the log up to a fault or an error is kept
+            output = Path(output)
+            output.mkdir(parents=True, exist_ok=True)
+            np.savez_compressed(output / "runtime_log.npz", **{k: np.asarray(v) for k, v in log.items()})
     summary["worker"] = _drain(worker_stats, WorkerStats)
     summary["robot"] = _robot_summary(_drain(robot_stats, RobotStats), config)
     if output is not None:
-        output = Path(output)
-        output.mkdir(parents=True, exist_ok=True)
-        log = summary.pop("_log")
-        np.savez_compressed(output / "runtime_log.npz", **log)
-        (output / "summary.json").write_text(json.dumps(summary, indent=1, default=_json))
-    else:
-        summary.pop("_log")
+        (Path(output) / "summary.json").write_text(json.dumps(summary, indent=1, default=_json))
     return summary
 
 
@@ -235,111 +256,6 @@ def _robot_summary(stats: dict, config: RuntimeConfig) -> dict:
             out["forward_speed_mps"] = float(np.polyfit(ts, xs, 1)[0])
         out["final_base"] = base[-1].tolist()
     return out
-
-
-def _control(config, robot, client, controller, plans, observations, worker, progress) -> dict:
-    from wbmpc.runtime.clock import DeadlineLoop
-    from wbmpc.runtime.metrics import RuntimeMetrics
-    from wbmpc.runtime.watchdog import Watchdog
-
-    metrics = RuntimeMetrics()
-    watchdog = Watchdog(config.max_plan_age, config.max_overruns, startup_grace_s=5.0)
-    epoch = 1
-    # The first observation: the robot at rest on its stand; the estimator starts at the nominal pose with
-    # the measured joints.
-    first = _first_observation(client, 5.0)
-    q0 = robot.q_nominal.copy()
-    q0[7:] = first.q
-    controller.reset(q0, np.zeros(robot.nv))
-    t0 = time.monotonic()
-    observations.publish(0.0, q0, np.zeros(robot.nv), epoch=epoch)
-    plan_seq, plan_meta, killed = 0, None, False
-    deadline = time.monotonic() + 30.0
-    while (got := plans.latest(plan_seq, epoch)) is None:  # the first plan, before the clock starts
-        if time.monotonic() > deadline or not worker.is_alive():
-            raise RuntimeError("no first plan from the MPC worker within 30 s")
-        time.sleep(0.001)
-    controller.offer(got[0])
-    plan_seq, plan_meta = got[1].seq, got[1]
-    metrics.plan_received(plan_seq, plan_meta.observation_time)
-    n_ticks = round(config.duration / config.period)
-    log = {k: [] for k in ("t", "q_hat", "v_hat", "tau", "q_cmd", "damping", "plan_seq", "lateness")}
-    loop = DeadlineLoop(config.period)
-    last_obs_time, last_wake, said = 0.0, None, set()
-    for _ in range(n_ticks):
-        tick = loop.wait_next()
-        now = (tick.wake_ns / 1e9) - t0
-        if "kill_worker_at" in config.faults and not killed and now >= config.faults["kill_worker_at"]:
-            worker.kill()
-            killed = True
-        observation = client.read()
-        if observation is not None:
-            observation.stamp -= t0  # the run's clock (both on CLOCK_MONOTONIC)
-            problem = controller.estimate(observation)
-            if problem and "not finite" in problem:
-                watchdog.trip(f"the robot sent an unusable observation: {problem}", now)
-            elif not problem:
-                last_obs_time = now
-        if now - last_obs_time > config.max_observation_gap:
-            watchdog.trip(f"no observation from the robot for {now - last_obs_time:.3f} s", now)
-        got = plans.latest(plan_seq, epoch)
-        if got is not None:
-            controller.offer(got[0])
-            plan_seq, plan_meta = got[1].seq, got[1]
-            metrics.plan_received(plan_seq, plan_meta.observation_time)
-        if not worker.is_alive():
-            watchdog.trip("the MPC worker died", now)
-        state = watchdog.check(now, plan_meta.observation_time, tick.overrun)
-        if state.tripped:
-            controller.enter_damping()
-            if state.reason not in said:
-                said.add(state.reason)
-                metrics.watchdog_event(now, state.reason)
-                print(f"[wbmpc.runtime] t={now:.3f} s: damping mode: {state.reason}", flush=True)
-        command = controller.command(now)
-        client.write(command)
-        if not command.damping:
-            metrics.plan_used(plan_seq, now)
-        if not controller.damping:
-            observations.publish(now, controller.q_hat, controller.v_hat, epoch=epoch)
-        compute = loop.tick_done()
-        period = None if last_wake is None else (tick.wake_ns - last_wake) / 1e9
-        last_wake = tick.wake_ns
-        metrics.tick(
-            lateness_s=tick.lateness_s,
-            overrun=tick.overrun,
-            compute_s=compute,
-            period_s=period,
-            plan_age_s=state.plan_age_s,
-            skipped=tick.skipped,
-        )
-        log["t"].append(now)
-        log["q_hat"].append(controller.q_hat)
-        log["v_hat"].append(controller.v_hat)
-        log["tau"].append(command.tau)
-        log["q_cmd"].append(command.q)
-        log["damping"].append(command.damping)
-        log["plan_seq"].append(plan_seq)
-        log["lateness"].append(tick.lateness_s)
-    metrics.plan_rejected("stale", plans.rejected_stale)
-    metrics.plan_rejected("epoch", plans.rejected_epoch)
-    summary = metrics.summary()
-    summary["config"] = asdict(config)
-    summary["controller_problems"] = [r for _, r in controller.problems[:20]]
-    summary["controller_problem_count"] = len(controller.problems)
-    summary["clipped"] = dict(controller.clipped)
-    summary["damping"] = bool(controller.damping)
-    summary["_log"] = {k: np.asarray(v) for k, v in log.items()}
-    return summary
-
-
-def _first_observation(client, timeout: float):
-    deadline = time.monotonic() + timeout
-    while (observation := client.read()) is None:
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"no observation from the robot within {timeout:g} s")
-        time.sleep(0.001)
-    return observation
 
 
 def _json(value):
