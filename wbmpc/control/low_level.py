@@ -87,6 +87,7 @@ class LowLevelController:
         self.torque_limits = torque_limits
         self.friction = friction
         self.plan: MPCSolution | None = None
+        self._times = None
         self.violations = 0
         self.last_reference: JointCommand | None = None
 
@@ -102,6 +103,7 @@ class LowLevelController:
                 f"{self.friction.nj} joints"
             )
         self.plan = plan
+        self._times = plan.node_times  # once per plan, not at every tick
 
     def reference(self, t: float) -> JointCommand:
         """Interpolated feed-forward torque and joint references at time ``t`` [s]; the feed-forward includes
@@ -109,7 +111,7 @@ class LowLevelController:
         plan = self.plan
         if plan is None:
             raise RuntimeError("LowLevelController has no MPC plan yet: call update() first")
-        times = plan.node_times
+        times = self._times
         n_tau = len(plan.tau)
         # Interval index: stay on the last interval that has a torque at both ends, hold beyond it.
         k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, max(n_tau - 2, 0)))

@@ -158,10 +158,11 @@ class RuntimeController:
     def _within_limits(self, command: MotorCommand) -> MotorCommand:
         """The command with setpoints clipped to the joint's position, rate and torque limits (each clip
         counted in ``clipped``): the robot refuses a command beyond them."""
-        clipped = (
-            np.clip(command.q, *self.position_limits),
-            np.clip(command.dq, -self.velocity_limits, self.velocity_limits),
-            np.clip(command.tau, -self.torque_limits, self.torque_limits),
+        low, high = self.position_limits
+        clipped = (  # minimum(maximum()) is np.clip for finite values, without its Python wrapper
+            np.minimum(np.maximum(command.q, low), high),
+            np.minimum(np.maximum(command.dq, -self.velocity_limits), self.velocity_limits),
+            np.minimum(np.maximum(command.tau, -self.torque_limits), self.torque_limits),
         )
         before = (command.q, command.dq, command.tau)
         for name, old, new in zip(("q", "dq", "tau"), before, clipped, strict=True):

@@ -23,7 +23,7 @@ import numpy as np
 
 __all__ = ["MPCRecipe", "WorkerStats", "run_worker"]
 
-#: Solves from the first observation of an epoch before the plan that is published (warm start, caches).
+#: Solves from the nominal standing pose before the worker says it is ready (warm start, caches).
 WARMUP_SOLVES = 3
 
 
@@ -137,7 +137,11 @@ def run_worker(
         if nice:
             os.nice(nice)  # the controller's loop must get a core the moment it wakes
         mpc = recipe.build()
-        planner = Planner(mpc, loop_config, np.asarray(q0, dtype=float))
+        q0 = np.asarray(q0, dtype=float)
+        planner = Planner(mpc, loop_config, q0)
+        v0 = np.zeros(mpc.robot.nv)
+        for _ in range(WARMUP_SOLVES):  # the first solves of a process are slow (caches, pages, warm start)
+            planner.plan(q0, v0, 0.0, None, record_delay=False)
         ready.set()
         last_seq, epoch, plan_in_use, first = 0, None, None, True
         stalled = False
@@ -150,12 +154,11 @@ def run_worker(
                 continue
             stats.skipped += max(0, observation.seq - last_seq - 1)
             last_seq = observation.seq
-            if observation.epoch != epoch:  # the controller reset: start over, warm
+            if observation.epoch != epoch:  # the controller (re)started
+                if epoch is not None:
+                    mpc.reset()  # a reset: the last plan says nothing of the new state
                 epoch, plan_in_use, first = observation.epoch, None, True
-                mpc.reset()
                 planner.reset()
-                for _ in range(WARMUP_SOLVES):  # the first solves of a process are slow (caches, pages)
-                    planner.plan(observation.q, observation.v, observation.t, None, record_delay=False)
             if stall is not None and not stalled and observation.t >= stall[0]:
                 stalled = True
                 time.sleep(stall[1])

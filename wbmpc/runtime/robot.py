@@ -214,6 +214,11 @@ class MotorCommand:
         """Why the command must not be written (``""`` if it may): a non-finite value, negative gains, or a
         setpoint outside the given limits (``position_limits`` (2, nj) [rad], the others (nj,) symmetric).
         The damping mode skips the position check (its setpoint is unused: kp = 0)."""
+        values = (self.q, self.dq, self.tau, self.kp, self.kd)
+        limited = position_limits is not None or velocity_limits is not None or torque_limits is not None
+        if not limited and np.isfinite(sum(float(np.sum(v)) for v in values)):
+            if float(np.min(self.kp)) >= 0 and float(np.min(self.kd)) >= 0:
+                return ""  # the fast path of every tick: finite values sum to a finite number
         for name in ("q", "dq", "tau", "kp", "kd"):
             value = np.asarray(getattr(self, name), dtype=float)
             if not np.all(np.isfinite(value)):

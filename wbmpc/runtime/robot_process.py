@@ -30,13 +30,15 @@ class EmulatedRobotSpec:
     """The emulated robot (picklable).
 
     Attributes:
-        plant_dt: Physics step [s]; period: the readings' and commands' period [s] (a multiple of it).
+        plant_dt: Physics step [s] (1 kHz: the drivers' PD law runs at this rate; the simulations use 0.5 ms,
+            but on 2 cores the wall clock leaves the emulated robot half a core); period: the readings' and
+            commands' period [s] (a multiple of it).
         hardware: Use the default :class:`~wbmpc.sim.hardware.HardwareProfile` (friction, armature, CoM
             offset, latency, noisy sensors); False: the ideal robot.
         seed: Sensor-noise seed.
     """
 
-    plant_dt: float = 0.0005
+    plant_dt: float = 0.001
     period: float = 0.002
     hardware: bool = True
     seed: int = 0

@@ -44,12 +44,14 @@ class RuntimeConfig:
         robot: ``"emulated"`` (the emulated robot behind shared memory) or ``"dds"`` (behind DDS,
             ``rt/lowcmd`` / ``rt/lowstate``).
         domain, interface: DDS domain and network interface (``robot="dds"``).
-        period: Controller period [s]; mpc_rate: the planner's nominal rate [Hz] (its delay bookkeeping).
+        period: Controller period [s]; mpc_rate: the planner's nominal rate [Hz] (the worker runs free, a
+            solve starting when the last one returned; a multiple of the robot's 1 ms step).
         max_plan_age: Watchdog limit on the age of the plan in use [s]; max_overruns: overrun ticks in a row
             that trip it; max_observation_gap: seconds without a robot observation that trip it.
         nodes, compiled: The MPC.
         faults: Faults to inject (:class:`~wbmpc.runtime.faults.Faults`), for tests.
-        gait: The gait schedule; ``None``: stand 2 s, trot at ``speed``, stand 2 s over ``duration``.
+        gait_schedule: The gait schedule (e.g. ``"stand:1,trot@0.2:3"``; the run lasts it, ``duration`` is
+            replaced); ``None``: stand 2 s, trot at ``speed``, stand 2 s over ``duration``.
         ready_timeout: Seconds to wait for the worker's MPC (a first compile takes minutes).
     """
 
@@ -59,7 +61,7 @@ class RuntimeConfig:
     domain: int = 42
     interface: str = "lo"
     period: float = 0.002
-    mpc_rate: float = 80.0
+    mpc_rate: float = 100.0
     max_plan_age: float = 0.15
     max_overruns: int = 5
     max_observation_gap: float = 0.02
@@ -82,7 +84,8 @@ class RuntimeConfig:
         if self.gait_schedule is not None:
             from wbmpc.ocp.gait import parse_gait_schedule
 
-            parse_gait_schedule(self.gait_schedule)  # raises on a bad schedule, before anything starts
+            # raises on a bad schedule, before anything starts; the run lasts the schedule
+            self.duration = float(parse_gait_schedule(self.gait_schedule).duration)
         elif not (np.isfinite(self.duration) and self.duration >= 4.5):
             raise ValueError(
                 f"RuntimeConfig.duration must be >= 4.5 s (stand 2, trot, stand 2), got {self.duration}"
@@ -104,9 +107,12 @@ def _loop_config(config: RuntimeConfig, hardware):
 
     schedule = parse_gait_schedule(config.gait)
     commands = CommandSchedule(ee_velocity_frame="heading", gait=schedule)
-    return hardware_config(
+    loop = hardware_config(
         hardware, commands=commands, delay="measured", duration=config.duration, mpc_rate=config.mpc_rate
     )
+    loop.plant.dt = EmulatedRobotSpec.plant_dt  # the planner rounds plan times to the robot's step
+    loop.check()
+    return loop
 
 
 def run_runtime(config: RuntimeConfig, output: str | Path | None = None, progress: bool = True) -> dict:
