@@ -87,18 +87,22 @@ def array(name: str, value, shape: int | tuple[int, ...] | None = None) -> np.nd
         value: The value given.
         shape: The shape (an int ``n`` is ``(n,)``); ``None``: any 1-D shape.
     """
-    if isinstance(shape, numbers.Integral):
+    if type(shape) is int:  # the common case first: this runs on every sensor reading
+        shape = (shape,)
+    elif isinstance(shape, numbers.Integral):
         shape = (int(shape),)
     elif shape is not None:
         shape = tuple(int(n) for n in shape)
-    text = "a 1-D shape" if shape is None else str(shape)
     try:
         out = np.array(value, dtype=float)
     except (TypeError, ValueError):
+        text = "a 1-D shape" if shape is None else str(shape)
         raise ValueError(f"{name} must be a numeric array of shape {text}, got {value!r}") from None
     if (shape is None and out.ndim != 1) or (shape is not None and out.shape != shape):
+        text = "a 1-D shape" if shape is None else str(shape)
         raise ValueError(f"{name} must have shape {text}, got {out.shape}")
-    if not np.all(np.isfinite(out)):
+    # x . x is finite for a finite vector (unless it overflows: then the elementwise test decides).
+    if not (out.ndim == 1 and math.isfinite(out.dot(out))) and not np.isfinite(out).all():
         raise ValueError(f"{name} must be finite ({name} contains NaN or inf: {out})")
     return out
 

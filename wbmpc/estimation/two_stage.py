@@ -57,12 +57,16 @@ Example:
 
 from __future__ import annotations
 
+import math
+import operator
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 import pinocchio as pin
 
 from wbmpc import checks
+from wbmpc.estimation import filters
 from wbmpc.estimation.filters import LowPassFilter
 from wbmpc.model.robot import Robot
 
@@ -77,6 +81,7 @@ __all__ = [
 ]
 
 _E_Z = np.array([0.0, 0.0, 1.0])
+_Z = (0.0, 0.0, 1.0)
 
 
 # ---------------------------------------------------------------------------------------------- readings
@@ -295,23 +300,18 @@ def contact_trust(schedule, t: float, window: float = 0.04, samples: int = 8) ->
         raise ValueError(f"t and window must be finite (window >= 0), got t={t!r}, window={window!r}")
     if window == 0:
         return schedule.sample(np.array([t])).contact[:, 0].astype(float)
-    offsets = np.linspace(-window, window, 2 * samples + 1)
+    samples = operator.index(samples)
+    offsets = filters.trust_offsets(float(window), samples)
     contact = schedule.sample(np.maximum(t + offsets, 0.0)).contact  # before t = 0: the first sample
-    trust = np.zeros(contact.shape[0])
-    for i, flags in enumerate(contact):
-        if not flags[samples]:
-            continue
-        back = flags[: samples + 1][::-1]  # t, t - h, ...
-        ahead = flags[samples:]
-        n_back = samples if back.all() else int(np.argmin(back)) - 1
-        n_ahead = samples if ahead.all() else int(np.argmin(ahead)) - 1
-        trust[i] = min(n_back, n_ahead) / samples
-    return np.clip(trust, 0.0, 1.0)
+    return np.array(filters.window_trust(contact, samples))
 
 
 # ---------------------------------------------------------------------------------------------- estimator
 class StateEstimator:
     """Two-stage Kalman filter (attitude, then base position, velocity and feet) from IMU and encoders.
+
+    Its constants are built once, the legs' Jacobian once per contact pattern, 3-vector arithmetic runs on
+    floats in numpy's order of operations (the same results; matrix products and factorisations are numpy's).
 
     Args:
         robot: The robot (model, foot frames, foot radius).
@@ -350,6 +350,9 @@ class StateEstimator:
         self._g = robot.gravity
         self.n_x = 6 + 3 * self.n_feet
         self._q: np.ndarray | None = None
+        self._q_kin = np.zeros(self.model.nq)  # the base at the origin, unrotated: feet in base axes
+        self._q_kin[6] = 1.0
+        self._c: SimpleNamespace | None = None
 
     # ------------------------------------------------------------------ state
     @property
@@ -379,11 +382,11 @@ class StateEstimator:
         v0 = checks.array("v0", v0, self.model.nv)
         n = self.noise
         self._R = _rotation(q0[3:7])
-        self._quat_ref = q0[3:7] / np.linalg.norm(q0[3:7])
+        self._quat_ref = (q0[3:7] / np.linalg.norm(q0[3:7])).tolist()
         self.gyro_bias = np.zeros(3)
         self.P_attitude = np.diag([n.initial_attitude**2] * 3 + [n.gyro_bias_initial**2] * 3)
-        self._gyro_prev: np.ndarray | None = None
-        r, _, _ = self._leg_kinematics(q0[7:], np.zeros(self.robot.nj))
+        self._gyro_prev: list[float] | None = None
+        r = np.array(self._foot_kinematics(q0[7:], [])[0])
         self._x = np.concatenate([q0[:3], self._R @ v0[:3], (q0[:3] + r @ self._R.T).ravel()])
         self.P = np.diag(
             [n.initial_position**2] * 3
@@ -421,149 +424,168 @@ class StateEstimator:
             RuntimeError: If :meth:`reset` was not called.
         """
         self._require_reset()
-        if not isinstance(imu, ImuReading):
-            raise ValueError(f"imu must be an ImuReading, got {type(imu).__name__}")
-        if not isinstance(joints, JointReading):
-            raise ValueError(f"joints must be a JointReading, got {type(joints).__name__}")
-        nj = self.robot.nj
-        if joints.positions.shape != (nj,):
-            raise ValueError(f"joints.positions must have shape ({nj},), got {joints.positions.shape}")
+        self._check_readings(imu, joints)
         contact_arr = np.asarray(contact)
         if contact_arr.shape != (self.n_feet,):
             raise ValueError(f"contact must have shape ({self.n_feet},), got {contact_arr.shape}")
         if contact_arr.dtype != bool and not np.all(np.isin(contact_arr, (0, 1))):
             raise ValueError(f"contact must hold booleans, got {contact_arr!r}")
-        contact_arr = contact_arr.astype(bool)
+        stance = (contact_arr if contact_arr.dtype == bool else contact_arr.astype(bool)).tolist()
         if trust is None:
-            trust_arr = contact_arr.astype(float)
+            trust_list = [1.0 if s else 0.0 for s in stance]
         else:
             trust_arr = checks.array("trust", trust, self.n_feet)
-            if np.any((trust_arr < 0) | (trust_arr > 1)):
+            trust_list = trust_arr.tolist()
+            if not all(0.0 <= x <= 1.0 for x in trust_list):
                 raise ValueError(f"trust must be in [0, 1], got {trust_arr!r}")
-            trust_arr = np.where(contact_arr, trust_arr, 0.0)
+            trust_list = [x if s else 0.0 for x, s in zip(trust_list, stance, strict=True)]
+        return self._advance(imu, joints, stance, trust_list)
 
+    def _check_readings(self, imu, joints) -> None:
+        """The type and shape checks of :meth:`update`'s readings (``ValueError`` naming the input)."""
+        if not isinstance(imu, ImuReading):
+            raise ValueError(f"imu must be an ImuReading, got {type(imu).__name__}")
+        if not isinstance(joints, JointReading):
+            raise ValueError(f"joints must be a JointReading, got {type(joints).__name__}")
+        if joints.positions.shape != (nj := self.robot.nj,):
+            raise ValueError(f"joints.positions must have shape ({nj},), got {joints.positions.shape}")
+
+    def _advance(self, imu: ImuReading, joints: JointReading, stance: list[bool], trust: list[float]):
+        """:meth:`update` once its inputs are checked: stance flags (bools) and trusts (floats in [0, 1], 0
+        for swing feet) as lists (:class:`wbmpc.sim.hardware.EstimatedState` calls it with its own)."""
+        c = self._constants()
         qd = self.filter(joints.velocities)
-        omega = self._attitude_predict(imu)
-        v_prev = self._x[3:6].copy()
-        self._translation_update(imu, joints.positions, qd, omega, contact_arr, trust_arr)
+        omega = self._attitude_predict(imu.gyro, c)
+        v_prev = self._x[3:6].tolist()
+        self._translation_update(imu.accelerometer, joints.positions, qd, omega, stance, trust, c)
         # Velocity-aided tilt: the base acceleration seen by the leg-corrected velocity (IMU only: none).
-        a_hat = (self._x[3:6] - v_prev) / self.dt if self.use_kinematics else np.zeros(3)
-        self._attitude_correct(imu, a_hat)
+        a_hat = [0.0] * 3
+        if self.use_kinematics:
+            a_hat = [(u - w) / self.dt for u, w in zip(self._x[3:6].tolist(), v_prev, strict=True)]
+        self._attitude_correct(imu, a_hat, c)
 
-        quat = pin.Quaternion(self._R).coeffs().copy()  # (x, y, z, w)
-        if quat @ self._quat_ref < 0:
-            quat = -quat  # keep one hemisphere: no sign jumps
+        quat = filters.quaternion(self._R)  # (x, y, z, w)
+        ref = self._quat_ref  # the sign of quat . ref (~ +-1) decides
+        if quat[0] * ref[0] + quat[1] * ref[1] + quat[2] * ref[2] + quat[3] * ref[3] < 0:
+            quat = [-a for a in quat]  # keep one hemisphere: no sign jumps
         self._quat_ref = quat
         q = np.concatenate([self._x[:3], quat, joints.positions])
         v = np.concatenate([self._R.T @ self._x[3:6], omega, qd])
-        self._q, self._v = q, v
-        return q.copy(), v.copy()
+        self._q, self._v = q, v  # never read back: the caller may keep (and change) them
+        return q, v
+
+    def _constants(self) -> SimpleNamespace:
+        """:func:`wbmpc.estimation.filters.two_stage_constants` of the tuning and ``dt`` (rebuilt if they
+        change)."""
+        c = self._c
+        if c is None or c.noise is not self.noise or c.dt != self.dt:
+            self._c = c = filters.two_stage_constants(self.noise, self.dt, self.n_feet)
+        return c
 
     # ------------------------------------------------------------------ stage 1: attitude
-    def _attitude_predict(self, imu: ImuReading) -> np.ndarray:
+    def _attitude_predict(self, gyro: np.ndarray, c: SimpleNamespace) -> np.ndarray:
         """Error-state KF on (R, b_g), prediction; returns the bias-corrected body rate [rad/s]."""
-        n, dt = self.noise, self.dt
-        gyro_prev = imu.gyro if self._gyro_prev is None else self._gyro_prev
-        self._gyro_prev = imu.gyro.copy()
-        w = 0.5 * (gyro_prev + imu.gyro) - self.gyro_bias  # trapezoidal rate over the period
+        now, dt = gyro.tolist(), self.dt
+        before = now if self._gyro_prev is None else self._gyro_prev
+        self._gyro_prev = now
+        rates = zip(before, now, self.gyro_bias.tolist(), strict=True)  # trapezoidal rate over the period
         # Predict: R <- R Exp(w dt); error dtheta (base frame) propagates with Exp(-w dt), bias enters -dt.
-        dR = pin.exp3(w * dt)
+        dR = pin.exp3(np.array([(0.5 * (u + w) - b) * dt for u, w, b in rates]))
         self._R = self._R @ dR
-        F = np.eye(6)
+        F = c.F_att
         F[:3, :3] = dR.T
-        F[:3, 3:] = -dt * np.eye(3)
-        Q = np.diag([(n.gyro * dt) ** 2] * 3 + [n.gyro_bias_walk**2 * dt] * 3)
-        self.P_attitude = _symmetric(F @ self.P_attitude @ F.T + Q)
-        return imu.gyro - self.gyro_bias
+        self.P_attitude = filters.symmetric(F @ self.P_attitude @ F.T + c.Q_att)
+        return gyro - self.gyro_bias
 
-    def _attitude_correct(self, imu: ImuReading, a_hat: np.ndarray) -> None:
+    def _attitude_correct(self, imu: ImuReading, a_hat: list[float], c: SimpleNamespace) -> None:
         """Error-state KF on (R, b_g), correction by the accelerometer (and the IMU orientation if given).
 
         ``f = R^T (a - g)`` with the base acceleration ``a`` [m/s^2] (world) estimated by the translation
         stage: ``h = R^T (a_hat + g e_z)``, ``d h / d dtheta = [h]_x``.
         """
-        n, P = self.noise, self.P_attitude
-        f = imu.accelerometer
-        h = self._R.T @ (a_hat + self._g * _E_Z)
+        n, R = self.noise, self._R
+        h = R.T @ np.array([a_hat[0] + self._g * 0.0, a_hat[1] + self._g * 0.0, a_hat[2] + self._g * 1.0])
+        res = imu.accelerometer - h
         # Inflate when the residual is large (unmodelled acceleration: impacts, slips).
-        sigma = n.gravity_direction * (1.0 + (np.linalg.norm(f - h) / n.gravity_gate) ** 2)
-        H = np.zeros((3, 6))
-        H[:, :3] = pin.skew(h)
-        rows, res, var = [H], [f - h], [np.full(3, sigma**2)]
-        if imu.orientation is not None:  # IMU's own orientation: residual Log(R^T R_m), H = [I 0]
-            Ho = np.zeros((3, 6))
-            Ho[:, :3] = np.eye(3)
-            rows.append(Ho)
-            res.append(pin.log3(self._R.T @ _rotation(imu.orientation)))
-            var.append(np.full(3, n.orientation**2))
-        dx, self.P_attitude = _kalman_correct(P, np.vstack(rows), np.concatenate(res), np.concatenate(var))
-        self._R = _orthonormalize(self._R @ pin.exp3(dx[:3]))
+        sigma = n.gravity_direction * (1.0 + (np.float64(math.sqrt(res.dot(res))) / n.gravity_gate) ** 2)
+        var = c.ones3 * sigma**2
+        if imu.orientation is None:
+            H = c.H_acc
+            H[:, :3] = pin.skew(h)
+        else:  # IMU's own orientation: residual Log(R^T R_m), H = [I 0]
+            H = c.H_imu
+            H[:3, :3] = pin.skew(h)
+            res = np.concatenate([res, pin.log3(R.T @ _rotation(imu.orientation))])
+            var = np.concatenate([var, np.full(3, n.orientation**2)])
+        dx, self.P_attitude = filters.kalman_correct(self.P_attitude, H, res, var)
+        self._R = filters.orthonormalize(R @ pin.exp3(dx[:3]))
         self.gyro_bias = self.gyro_bias + dx[3:]
 
     # ------------------------------------------------------------------ stage 2: position and velocity
-    def _translation_update(self, imu, qj, qd, omega, contact, trust) -> None:
-        """Linear KF on [p, v, p_feet] (world) with IMU acceleration input and leg-kinematics measurements."""
-        n, dt, nf = self.noise, self.dt, self.n_feet
-        R = self._R
-        a = R @ imu.accelerometer - self._g * _E_Z  # world acceleration of the base
-        r, J, w_rel = self._leg_kinematics(qj, qd)  # base frame: foot positions, linear, angular rates
-        # Rolling spherical feet: the frame (sphere centre) moves with omega_foot x (radius e_z).
-        w_feet = (omega + w_rel) @ R.T  # (nf, 3), world
-        roll = self.robot.foot_radius * np.cross(w_feet, _E_Z)
-        roll[~contact] = 0.0
+    def _translation_update(self, accelerometer, qj, qd, omega, stance, trust, c) -> None:
+        """Linear KF on [p, v, p_feet] (world) with IMU acceleration input and leg-kinematics measurements
+        (per-foot products batched: ``np.matmul`` on a stack makes the same BLAS call for each foot)."""
+        n, dt, R, nf = self.noise, self.dt, self._R, self.n_feet
+        on = [i for i, s in enumerate(stance) if s]
+        r, J = self._foot_kinematics(qj, on)  # base frame: positions (nf of 3), stance Jacobians
+        Jqd = J.reshape(-1, 3, J.shape[2]) @ qd  # per stance foot: linear, angular (relative to the base)
+        om, lin, turn = omega.tolist(), Jqd[::2].tolist(), []  # turn: omega x r_i + J_i qd (stance feet)
+        for i, u in zip(on, lin, strict=True):
+            w = filters.cross(om, r[i])
+            turn += [w[0] + u[0], w[1] + u[1], w[2] + u[2]]
+        stack = np.array(accelerometer.tolist() + sum(r, []) + turn).reshape(-1, 3, 1)
+        rotated = np.matmul(R, stack).reshape(-1, 3).tolist()  # R f, R r_i, R turn_i
+        a = rotated[0]
+        a[2] -= self._g  # R f - g e_z: the world acceleration of the base
+        # Rolling spherical feet: the frame (sphere centre) moves with omega_foot x (radius e_z), omega_foot
+        # = omega + the foot's rate relative to the base (one product of all feet's rows, swing ones unused).
+        roll = [[0.0] * 3 for _ in stance]
+        if on:
+            w_feet = omega + Jqd[1::2]
+            if len(on) < nf:
+                w_feet = w_feet[[on.index(i) if s else 0 for i, s in enumerate(stance)]]
+            w_feet = (w_feet @ R.T).tolist()  # world
+            for i in on:
+                roll[i] = [self.robot.foot_radius * y for y in filters.cross(w_feet[i], _Z)]
 
         # Predict.
-        F = np.eye(self.n_x)
-        F[:3, 3:6] = dt * np.eye(3)
-        x = F @ self._x
-        x[:3] += 0.5 * dt**2 * a
-        x[3:6] += dt * a
-        x[6:] += dt * roll.ravel()
-        inflate = 1.0 + (1.0 - trust) * n.swing_inflation  # 1 for trusted stance feet
-        q_feet = np.repeat(n.foot_slip**2 * dt * inflate, 3)
-        Q = np.diag(np.concatenate([np.full(3, n.base_position_walk**2 * dt), np.zeros(3), q_feet]))
-        G = np.vstack([0.5 * dt**2 * np.eye(3), dt * np.eye(3)])  # acceleration noise -> (p, v)
-        Q[:6, :6] += n.accelerometer**2 * (G @ G.T)
-        P = F @ self.P @ F.T + Q
+        x = c.F @ self._x  # += [dt^2 / 2 a, dt a, dt roll]
+        x += np.array([c.half_dt2 * y for y in a] + [dt * y for y in a + sum(roll, [])])
+        inflate = [1.0 + (1.0 - t) * n.swing_inflation for t in trust]  # 1 for trusted stance feet
+        P, slip = c.F @ self.P @ c.F.T + c.Q, n.foot_slip**2 * dt
+        P.reshape(-1)[c.feet] += np.array([slip * k for k in inflate for _ in range(3)])
         if not self.use_kinematics:
-            self._x, self.P = x, _symmetric(P)
+            self._x, self.P = x, filters.symmetric(P)
             return
 
-        # Measurements: every foot's position relative to the base; stance feet's velocity too.
-        rows, res, var = [], [], []
-        for i in range(nf):
-            sl = slice(6 + 3 * i, 9 + 3 * i)
-            Hp = np.zeros((3, self.n_x))
-            Hp[:, :3], Hp[:, sl] = -np.eye(3), np.eye(3)
-            rows.append(Hp)
-            res.append(R @ r[i] - (x[sl] - x[:3]))
-            var.append(np.full(3, n.foot_position**2 * inflate[i]))
-            if contact[i]:
-                Hv = np.zeros((3, self.n_x))
-                Hv[:, 3:6] = np.eye(3)
-                v_meas = roll[i] - R @ (np.cross(omega, r[i]) + J[i] @ qd)
-                rows.append(Hv)
-                res.append(v_meas - x[3:6])
-                var.append(np.full(3, n.foot_velocity**2 * inflate[i]))
-        dx, self.P = _kalman_correct(P, np.vstack(rows), np.concatenate(res), np.concatenate(var))
+        # Measurements: every foot's position relative to the base; stance feet's velocity (roll - R turn).
+        H = c.H.get(key := tuple(stance))
+        if H is None:
+            H = c.H[key] = filters.kinematics_jacobian(self.n_x, key)
+        x_list = x.tolist()
+        bx, by, bz, vx, vy, vz = x_list[:6]
+        var_p, var_v = n.foot_position**2, n.foot_velocity**2
+        res, var = [], []
+        for i, s in enumerate(stance):
+            (rx, ry, rz), (fx, fy, fz) = rotated[1 + i], x_list[6 + 3 * i : 9 + 3 * i]
+            res += [rx - (fx - bx), ry - (fy - by), rz - (fz - bz)]
+            var += [var_p * inflate[i]] * 3
+            if s:
+                (ux, uy, uz), (wx, wy, wz) = rotated[1 + nf + on.index(i)], roll[i]
+                res += [(wx - ux) - vx, (wy - uy) - vy, (wz - uz) - vz]
+                var += [var_v * inflate[i]] * 3
+        dx, self.P = filters.kalman_correct(P, H, np.array(res), np.array(var))
         self._x = x + dx
 
-    def _leg_kinematics(self, qj: np.ndarray, qd: np.ndarray):
-        """Feet relative to the base, base axes: positions (nf, 3), linear Jacobians (nf, 3, nj) and angular
-        rates of the feet relative to the base (nf, 3) [rad/s]."""
-        model, data = self.model, self.data
-        q = np.concatenate([np.zeros(3), [0.0, 0.0, 0.0, 1.0], qj])
+    def _foot_kinematics(self, qj: np.ndarray, on: list[int]) -> tuple[list[list[float]], np.ndarray]:
+        """Feet relative to the base, base axes, at the joint angles ``qj``: positions (n_feet of 3 floats),
+        joint Jacobians (len(on), 6, nj) of the feet ``on`` (LOCAL_WORLD_ALIGNED: linear rows, angular)."""
+        model, data, q = self.model, self.data, self._q_kin
+        q[7:] = qj
         pin.computeJointJacobians(model, data, q)
-        pin.updateFramePlacements(model, data)
-        r = np.empty((self.n_feet, 3))
-        J = np.empty((self.n_feet, 3, self.robot.nj))
-        w_rel = np.empty((self.n_feet, 3))
-        for i, fid in enumerate(self._foot_ids):
-            r[i] = data.oMf[fid].translation
-            Jf = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:, 6:]
-            J[i] = Jf[:3]
-            w_rel[i] = Jf[3:] @ qd
-        return r, J, w_rel
+        r = [pin.updateFramePlacement(model, data, fid).translation.tolist() for fid in self._foot_ids]
+        J = [pin.getFrameJacobian(model, data, self._foot_ids[i], pin.LOCAL_WORLD_ALIGNED) for i in on]
+        return r, (np.array(J) if J else np.zeros((0, 6, model.nv)))[:, :, 6:]
 
     def _require_reset(self) -> None:
         if self._q is None:
@@ -571,26 +593,7 @@ class StateEstimator:
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-def _kalman_correct(P: np.ndarray, H: np.ndarray, residual: np.ndarray, variances: np.ndarray):
-    """Kalman correction ``dx = K r`` and the Joseph-form covariance, ``R = diag(variances)``."""
-    S = H @ P @ H.T + np.diag(variances)
-    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S, P symmetric)
-    dx = K @ residual
-    A = np.eye(P.shape[0]) - K @ H
-    P = A @ P @ A.T + (K * variances) @ K.T
-    return dx, _symmetric(P)
-
-
-def _symmetric(P: np.ndarray) -> np.ndarray:
-    return 0.5 * (P + P.T)
-
-
 def _rotation(quat: np.ndarray) -> np.ndarray:
     """Rotation matrix of a quaternion (x, y, z, w) (normalised here)."""
     quat = np.asarray(quat, dtype=float)
     return pin.Quaternion(quat / np.linalg.norm(quat)).toRotationMatrix()
-
-
-def _orthonormalize(R: np.ndarray) -> np.ndarray:
-    u, _, vt = np.linalg.svd(R)
-    return u @ vt

@@ -22,6 +22,7 @@ segment stands still unless told otherwise, e.g. ``"stand:2,trot@0.5:4,trot@0.3/
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -55,7 +56,8 @@ class GaitSample(NamedTuple):
 def to_ticks(times, tick: float = SCHEDULE_TICK) -> np.ndarray:
     """Times [s] (1-D array) as the nearest integer ticks of ``tick`` [s] (int64)."""
     times = np.asarray(times, dtype=float)
-    if times.ndim != 1 or not np.all(np.isfinite(times)):
+    # t . t is finite for finite times (unless it overflows: then the elementwise test decides).
+    if times.ndim != 1 or not (math.isfinite(times.dot(times)) or np.isfinite(times).all()):
         raise ValueError(f"times must be a finite 1-D array [s], got shape {times.shape}")
     return np.rint(times / tick).astype(np.int64)
 
@@ -108,6 +110,7 @@ class Gait:
         object.__setattr__(
             self, "_offset_ticks", np.rint(offsets * period_ticks).astype(np.int64) % period_ticks
         )
+        object.__setattr__(self, "_offset_column", self._offset_ticks[:, None])
 
     @property
     def swing_duration(self) -> float:
@@ -125,9 +128,7 @@ class Gait:
 
     def sample_ticks(self, ticks) -> GaitSample:
         """:meth:`sample` at integer ticks (time = tick * self.tick, the cycle starting at tick 0)."""
-        local = np.mod(
-            np.asarray(ticks, dtype=np.int64)[None, :] - self._offset_ticks[:, None], self._period_ticks
-        )
+        local = np.mod(np.asarray(ticks, dtype=np.int64)[None, :] - self._offset_column, self._period_ticks)
         swing = local < self._swing_ticks  # always False for swing_fraction 0
         phase = np.where(swing, local / max(self._swing_ticks, 1), 0.0)
         contact = ~swing
@@ -282,6 +283,11 @@ class GaitSchedule:
     def sample(self, times) -> GaitSample:
         """Contact flags, swing phases and swing durations of the 4 feet at the given times [s]."""
         ticks = to_ticks(times, self.tick)
+        if ticks.size:  # all in one segment (a window around one time): that gait's sample
+            listed = ticks.tolist()
+            first, last = self._segment(min(listed)), self._segment(max(listed))
+            if first == last:
+                return self.gaits[first].sample_ticks(ticks - self.cycle_origins[first])
         index = np.clip(np.searchsorted(self.start_ticks, ticks, side="right") - 1, 0, len(self.gaits) - 1)
         n = ticks.size
         contact, phase, duration = np.ones((4, n), bool), np.zeros((4, n)), np.zeros((4, n))
@@ -290,6 +296,10 @@ class GaitSchedule:
             s = self.gaits[j].sample_ticks(ticks[cols] - self.cycle_origins[j])
             contact[:, cols], phase[:, cols], duration[:, cols] = s.contact, s.swing_phase, s.swing_duration
         return GaitSample(contact, phase, contact.sum(axis=0), duration)
+
+    def _segment(self, tick: int) -> int:
+        """Index of the segment in force at an integer tick (:meth:`segment_index` of one tick)."""
+        return min(max(bisect.bisect_right(self.start_ticks.tolist(), tick) - 1, 0), len(self.gaits) - 1)
 
     def contact(self, t: float) -> np.ndarray:
         """Contact flags (4,) bool at time t [s], True = stance."""

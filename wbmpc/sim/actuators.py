@@ -18,6 +18,7 @@ are unstable once ``I_a`` exceeds a joint's effective link inertia (the B1 calf 
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,7 +85,10 @@ class Actuators:
         self._friction_velocity = float(model.friction_velocity)
         self._dt = checks.number("dt", dt, low=0.0, low_open=True, unit="s")
         self.latency_steps = round(model.latency / self._dt)
-        self._queue: list[np.ndarray] = []  # torque delay line, oldest first
+        self._has_armature = bool(self._armature.any())
+        self._two_dt = 2.0 * self._dt
+        self._work = np.empty(nj)  # scratch of torque()
+        self._queue: deque[np.ndarray] = deque()  # torque delay line, oldest first
         self._rates: list[np.ndarray] = []  # last three joint rates, for the armature torque
         self.clip_counts = np.zeros(nj, dtype=np.int64)
         self.motor_torque = np.zeros(nj)
@@ -104,25 +108,40 @@ class Actuators:
         Raises:
             ValueError: On a wrong shape or a non-finite value in ``command``.
         """
-        tau = checks.array("tau_joints", command, len(self.torque_limits))
-        clipped = np.abs(tau) > self.torque_limits
-        if clipped.any():
-            self.clip_counts += clipped
-            tau = np.clip(tau, -self.torque_limits, self.torque_limits)
+        limits = self.torque_limits
+        try:  # the common case first: a valid command within the limits (hence finite)
+            tau = np.array(command, dtype=float)
+            valid = tau.shape == limits.shape and np.count_nonzero(np.abs(tau) <= limits) == tau.size
+        except (TypeError, ValueError):
+            valid = False
+        if not valid:
+            tau = checks.array("tau_joints", command, len(limits))
+            clipped = np.abs(tau) > limits
+            if clipped.any():
+                self.clip_counts += clipped
+                tau = np.clip(tau, -limits, limits)
         if self.latency_steps:
             if not self._queue:
                 self._queue.extend(tau.copy() for _ in range(self.latency_steps))
-            self._queue.append(tau.copy())
-            tau = self._queue.pop(0)
+            self._queue.append(tau)  # a copy of the command already
+            tau = self._queue.popleft()
         self.motor_torque = tau
         qd = joint_rates
-        extra = -(self._coulomb * np.tanh(qd / self._friction_velocity) + self._viscous * qd)
-        if self._armature.any():
+        # -(c tanh(qd / v_s) + b qd) - I_a qddot, the operations in that order; buffers: fewer allocations.
+        extra, work = qd / self._friction_velocity, self._work
+        np.tanh(extra, out=extra)
+        np.multiply(self._coulomb, extra, out=extra)
+        extra += np.multiply(self._viscous, qd, out=work)
+        np.negative(extra, out=extra)
+        if self._has_armature:
             history = self._rates
             history.append(qd.copy())
-            del history[:-3]
+            if len(history) > 3:
+                del history[0]
             if len(history) == 3:  # mean acceleration over the last two steps
-                extra -= self._armature * (history[2] - history[0]) / (2.0 * self._dt)
+                np.subtract(history[2], history[0], out=work)
+                np.multiply(self._armature, work, out=work)
+                extra -= np.divide(work, self._two_dt, out=work)
         self.friction_torque = extra
         return tau + extra
 
@@ -156,7 +175,9 @@ class ActuatedPlant(Plant):
 
     def step(self, tau_joints, contact=None, external_wrench=None, ee_force=None) -> PlantState:
         """One plant step with the motors' torques for the commanded ``tau_joints`` [N m] (nj,)."""
-        tau = self.actuators.torque(tau_joints, self.plant.state.v[6:])
+        plant = self.plant
+        rates = plant.joint_velocities if hasattr(type(plant), "joint_velocities") else plant.state.v[6:]
+        tau = self.actuators.torque(tau_joints, rates)
         return self.plant.step(tau, contact, external_wrench=external_wrench, ee_force=ee_force)
 
     @property

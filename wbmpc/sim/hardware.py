@@ -42,6 +42,10 @@ contacts from the MPC's contact plan (the gait schedule with any swing aborted a
 
 from __future__ import annotations
 
+import math
+import numbers
+import operator
+import sys
 from dataclasses import asdict, dataclass, field, fields
 from types import SimpleNamespace
 
@@ -56,6 +60,7 @@ from wbmpc.estimation import (
     contact_trust,
     synthesize_imu,
 )
+from wbmpc.estimation.filters import trust_offsets, window_trust
 from wbmpc.model.quaternion import base_z_axis
 from wbmpc.sim.actuators import MotorModel
 
@@ -196,7 +201,8 @@ class HardwareProfile:
 class PlannedContacts:
     """A contact plan ``plan(times) -> (n_feet, n)`` flags seen as a gait schedule (``contact(t)``,
     ``sample(times).contact``), e.g. :meth:`wbmpc.control.mpc.WholeBodyMPC.contact_plan`: the schedule with
-    the swings aborted after a push, so that the estimator trusts the legs the controller put down."""
+    the swings aborted after a push, so that the estimator trusts the legs the controller put down. Each
+    column of the plan depends on its own time only (the estimator samples it once per update)."""
 
     def __init__(self, plan):
         if not callable(plan):
@@ -294,8 +300,41 @@ class EstimatedState:
     def update(self, imu: ImuReading, joints: JointReading, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimate ``(q_hat, v_hat)`` from readings taken at ``t`` [s] (the contacts of the schedule
         then)."""
-        contact = np.asarray(self.schedule.contact(t), dtype=bool)
-        return self.estimator.update(imu, joints, contact, contact_trust(self.schedule, t))
+        schedule, estimator = self.schedule, self.estimator
+        both = _contact_and_trust(schedule, t) if _one_sample(schedule) else None
+        if both is None or len(both[0]) != estimator.n_feet:
+            contact = np.asarray(schedule.contact(t), dtype=bool)
+            return estimator.update(imu, joints, contact, contact_trust(schedule, t))
+        estimator._require_reset()
+        estimator._check_readings(imu, joints)
+        return estimator._advance(imu, joints, *both)  # the flags and trusts are valid by construction
+
+
+def _one_sample(schedule) -> bool:
+    """Whether ``schedule.contact(t)`` is ``schedule.sample([t]).contact[:, 0]``, each sample independent of
+    the others: a :class:`PlannedContacts`, a gait or a gait schedule (their module is not imported here:
+    without it, there are none)."""
+    gait = sys.modules.get("wbmpc.ocp.gait")
+    return type(schedule) is PlannedContacts or (
+        gait is not None and type(schedule) in (gait.Gait, gait.GaitSchedule)
+    )
+
+
+def _contact_and_trust(schedule, t: float, window: float = 0.04, samples: int = 8):
+    """``(schedule.contact(t), contact_trust(schedule, t, window, samples))`` from one ``schedule.sample``
+    (the trust's window holds ``t``) for a schedule of :func:`_one_sample`.
+
+    Returns:
+        Contact flags and trusts (in [0, 1], 0 for swing feet) as lists (n_feet,); ``None`` for ``t < 0`` (the
+        window starts at 0) or a ``t`` that is not a finite number (the schedule's own lookups raise).
+    """
+    if not (isinstance(t, numbers.Real) and math.isfinite(t) and t >= 0.0):
+        return None
+    offsets = trust_offsets(float(window), operator.index(samples))
+    if offsets[samples] != 0.0:  # the middle sample is t itself
+        return None
+    contact = np.asarray(schedule.sample(np.maximum(t + offsets, 0.0)).contact, dtype=bool)
+    return contact[:, samples].tolist(), window_trust(contact, samples)
 
 
 def estimate_errors(q: np.ndarray, v: np.ndarray, q_hat: np.ndarray, v_hat: np.ndarray) -> dict:

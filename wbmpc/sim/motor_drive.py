@@ -52,6 +52,7 @@ class MotorDrive:
         self.violations = 0
         self.clipped_steps = np.zeros(self.torque_limits.shape, dtype=int)
         self._queue: deque = deque()
+        self._limits = None  # torque_limits of the cached bounds _tolerated, _lower
         self._active = None  # (tau_ff, q_des, v_des, kp, kd) in force
         self._step = 0
 
@@ -78,9 +79,19 @@ class MotorDrive:
         if self._active is None:
             return np.zeros_like(self.torque_limits)
         tau_ff, q_des, v_des, kp, kd = self._active
-        tau = tau_ff + kp * (q_des - q_joint) + kd * (v_des - v_joint)
-        over = np.abs(tau) > self.torque_limits * (1 + 1e-6)
-        if over.any():
+        limits = self.torque_limits
+        if limits is not self._limits:  # the bounds and scratch of the checks below, once per set of limits
+            self._limits, self._tolerated, self._lower = limits, limits * (1 + 1e-6), -limits
+            self._work, self._over = np.empty(limits.shape), np.empty(limits.shape, dtype=bool)
+        # tau_ff + kp (q_des - q) + kd (v_des - v), the operations in that order (fewer allocations).
+        tau, work = np.subtract(q_des, q_joint, dtype=float), self._work
+        np.multiply(kp, tau, out=tau)
+        np.add(tau_ff, tau, out=tau)
+        np.subtract(v_des, v_joint, out=work)
+        tau += np.multiply(kd, work, out=work)
+        over = np.greater(np.abs(tau, out=work), self._tolerated, out=self._over)
+        if np.count_nonzero(over):  # (.any() costs several times more on 16 joints)
             self.violations += 1
             self.clipped_steps += over
-        return np.clip(tau, -self.torque_limits, self.torque_limits)
+        np.maximum(tau, self._lower, out=tau)  # np.clip, without its checks
+        return np.minimum(tau, limits, out=tau)

@@ -52,39 +52,45 @@ class ContactReadings:
 
     def _read_contacts(self) -> None:
         n = self._robot.n_feet
-        forces = [[0.0, 0.0, 0.0] for _ in range(n)]
-        ee = [0.0, 0.0, 0.0]
+        forces = [[0.0, 0.0, 0.0] for _ in range(n + 1)]  # the feet's, then the gripper's
         depth = [0.0] * n
         friction = [0.0] * n  # largest friction force / (mu f_n) over the foot's contact points
         ground, robot, feet, gripper = self._ground, self._body, self._foot_of_link, self._gripper_links
+        mu = self._mu
         # Plain-float arithmetic: this runs every step and numpy is slow on 3-vectors.
         for c in p.getContactPoints(bodyA=robot, physicsClientId=self._client):
             other, link = c[2], c[3]
             if other == robot:
                 continue
-            # c[7] is the normal on B pointing towards A: these forces act on A, the robot.
-            fn, n_b, f1, d1, f2, d2 = c[9], c[7], c[10], c[11], c[12], c[13]
-            f = [fn * n_b[i] + f1 * d1[i] + f2 * d2[i] for i in range(3)]
             foot = feet.get(link)
-            if foot is not None:
-                acc = forces[foot]
-                for i in range(3):
-                    acc[i] += f[i]
-                if other != ground:
-                    continue  # a box or a wall: its friction differs, no slip or depth check
-                depth[foot] = min(depth[foot], c[8])
-                if fn > 0.0 and self._mu > 0.0:
-                    friction[foot] = max(friction[foot], (f1 * f1 + f2 * f2) ** 0.5 / (self._mu * fn))
-            elif link in gripper:
-                for i in range(3):
-                    ee[i] += f[i]
-        self._forces = np.array(forces)
-        self._ee_force = np.array(ee)
-        self._in_contact = self._forces[:, 2] > 0.0
-        self._violations["slipping"] = self._in_contact & (np.array(friction) >= _SLIP_RATIO)
-        self._violations["penetrating"] = np.array(depth) < -_PENETRATION_TOL
-        for k in ("slipping", "penetrating"):
-            self._counts[k] += self._violations[k]
+            if foot is None and link not in gripper:
+                continue
+            # c[7] is the normal on B pointing towards A: these forces act on A, the robot.
+            (nx, ny, nz), fn, f1, (ax, ay, az), f2, (bx, by, bz) = c[7], c[9], c[10], c[11], c[12], c[13]
+            acc = forces[n if foot is None else foot]
+            acc[0] += fn * nx + f1 * ax + f2 * bx
+            acc[1] += fn * ny + f1 * ay + f2 * by
+            acc[2] += fn * nz + f1 * az + f2 * bz
+            if foot is None or other != ground:
+                continue  # the gripper; or a box or a wall: its friction differs, no slip or depth check
+            if c[8] < depth[foot]:
+                depth[foot] = c[8]
+            if fn > 0.0 and mu > 0.0:
+                ratio = (f1 * f1 + f2 * f2) ** 0.5 / (mu * fn)
+                if ratio > friction[foot]:
+                    friction[foot] = ratio
+        in_contact = [f[2] > 0.0 for f in forces[:n]]
+        slipping = [c and s >= _SLIP_RATIO for c, s in zip(in_contact, friction, strict=True)]
+        penetrating = [d < -_PENETRATION_TOL for d in depth]
+        self._ee_force = np.array(forces.pop())
+        self._forces = np.array(forces).reshape(n, 3)
+        flags = np.array(in_contact + slipping + penetrating, dtype=bool)  # one conversion, three views
+        self._in_contact = flags[:n]
+        self._violations["slipping"], self._violations["penetrating"] = flags[n : 2 * n], flags[2 * n :]
+        if any(slipping):
+            self._counts["slipping"] += self._violations["slipping"]
+        if any(penetrating):
+            self._counts["penetrating"] += self._violations["penetrating"]
 
     def contact_forces(self) -> np.ndarray:
         """World contact forces on the feet during the last step [N], shape (n_feet, 3).

@@ -44,6 +44,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -68,6 +69,32 @@ from wbmpc.sim.pybullet_scene import SceneBodies, scene_items
 from wbmpc.sim.scene import Box, Payload, SceneObject, Wall
 
 __all__ = ["Box", "Payload", "PyBulletPlant", "Wall"]
+
+
+def _quaternion_product(a, b) -> list[float]:
+    """:func:`wbmpc.model.quaternion.quaternion_multiply` of two sequences of floats, as a list."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return [
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ]
+
+
+def _rotation_rows(x: float, y: float, z: float, w: float) -> list[list[float]]:
+    """The rows of :func:`wbmpc.model.quaternion.rotation_matrix` of a unit quaternion (x, y, z, w)."""
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+
+
+def _cross(a, b) -> list[float]:
+    """:func:`wbmpc.model.quaternion.cross3` of two sequences of floats, as a list."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
 # ---------------------------------------------------------------------------------------------- plant
@@ -164,6 +191,7 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
         self._counts = {k: np.zeros(n, dtype=np.int64) for k in VIOLATION_KINDS}
         self._clip_counts = np.zeros(robot.nj, dtype=np.int64)
         self._tau_limits = robot.joint_torque_limits
+        self._nq, self._nj = robot.model.nq, robot.nj
         self._q = robot.q_nominal
         self._v = np.zeros(robot.nv)
         self.reset(robot.q_nominal, np.zeros(robot.nv))
@@ -196,6 +224,7 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
         self._r_li = np.array(info[3])
         self._q_li = np.array(info[4])
         self._q_il = quaternion_conjugate(self._q_li)
+        self._q_il_list = self._q_il.tolist()
 
         for link in range(-1, p.getNumJoints(body, physicsClientId=cid)):
             p.changeDynamics(
@@ -293,31 +322,39 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
         return PlantState(self._q.copy(), self._v.copy(), self.time)
 
     @property
+    def joint_velocities(self) -> np.ndarray:
+        """Joint rates [rad/s] (nj,) of the current state (``state.v[6:]``, a copy, without the state's)."""
+        return self._v[6:].copy()
+
+    @property
     def torque_clip_counts(self) -> np.ndarray:
         """Per-joint number of steps whose commanded torque exceeded the limit since :meth:`reset`, (nj,)."""
         return self._clip_counts.copy()
 
     # ------------------------------------------------------------------ state conversion
     def _read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        # Plain-float arithmetic in numpy's order of operations (the quaternion product, the rotation matrix
+        # and the cross product of wbmpc.model.quaternion) and numpy's BLAS for the matrix products, batched.
         cid, body = self._client, self._body
         pos_c, quat_c = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         vel_c, omega = p.getBaseVelocity(body, physicsClientId=cid)
         states = p.getJointStates(body, self._joint_ids, physicsClientId=cid)
-        quat = quaternion_multiply(quat_c, self._q_il)
-        if quat @ self._q[3:7] < 0.0:
-            quat = -quat  # same rotation; stay in the previous state's hemisphere (no sign jumps in logs)
-        R = rotation_matrix(quat)
-        r_c = R @ self._r_li  # base origin -> centre of mass, world
-        omega = np.array(omega)
-        q = np.empty(self._model.nq)
-        v = np.empty(self._model.nv)
-        q[:3] = np.subtract(pos_c, r_c)
-        q[3:7] = quat
-        q[7:] = [s[0] for s in states]
-        v[:3] = (np.subtract(vel_c, cross3(omega, r_c))) @ R
-        v[3:6] = omega @ R
-        v[6:] = [s[1] for s in states]
-        return q, v
+        quat = _quaternion_product(quat_c, self._q_il_list)
+        x, y, z, w = self._quat_prev  # self._q[3:7] (|q . q_prev| ~ 1: its sign decides)
+        if quat[0] * x + quat[1] * y + quat[2] * z + quat[3] * w < 0.0:
+            quat = [-a for a in quat]  # same rotation; stay in the previous hemisphere (no sign jumps)
+        self._quat_read = quat
+        R = np.array(_rotation_rows(*quat))
+        r_c = (R @ self._r_li).tolist()  # base origin -> centre of mass, world
+        turn = _cross(omega, r_c)
+        lin = [vel_c[0] - turn[0], vel_c[1] - turn[1], vel_c[2] - turn[2]]
+        (lin,), (ang,) = np.matmul(np.array([[lin], [omega]]), R).tolist()  # v R, omega R: base axes
+        joint_q, joint_v = (list(zip(*states, strict=True)) or [(), ()])[:2]  # positions, rates
+        values = [pos_c[0] - r_c[0], pos_c[1] - r_c[1], pos_c[2] - r_c[2], *quat, *joint_q, *lin, *ang]
+        values += joint_v
+        self._finite = math.isfinite(sum(values))  # (or the sum overflows: step checks each value then)
+        both = np.array(values)  # one conversion: q and v are views of it
+        return both[: self._nq], both[self._nq :]
 
     def _write_state(self, q: np.ndarray, v: np.ndarray) -> None:
         cid, body = self._client, self._body
@@ -362,8 +399,10 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
             raise ValueError("q: the base quaternion has zero norm")
         q[3:7] /= norm
         self._q = q  # reference hemisphere of the quaternion read back
+        self._quat_prev = q[3:7].tolist()
         self._write_state(q, v)
         self._q, self._v = self._read_state()
+        self._quat_prev = self._quat_read
         self._t0, self._steps = float(t), 0
         self._forces[:] = 0.0
         self._in_contact[:] = False
@@ -405,13 +444,17 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
         """
         del contact
         cid, body = self._client, self._body
-        tau = checks.array("tau_joints", tau_joints, self._robot.nj)
-        clipped = np.abs(tau) > self._tau_limits
-        if self._clip_torques and clipped.any():
-            self._clip_counts += clipped
-            tau = np.clip(tau, -self._tau_limits, self._tau_limits)
+        tau = checks.array("tau_joints", tau_joints, self._nj)
+        if self._clip_torques:
+            clipped = np.abs(tau) > self._tau_limits
+            if clipped.any():
+                self._clip_counts += clipped
+                tau = np.clip(tau, -self._tau_limits, self._tau_limits)
         wrench = None if external_wrench is None else checks.array("external_wrench", external_wrench, 6)
-        p.setJointMotorControlArray(body, self._joint_ids, p.TORQUE_CONTROL, forces=tau, physicsClientId=cid)
+        # The same values as a list: pybullet reads it faster than an array.
+        p.setJointMotorControlArray(
+            body, self._joint_ids, p.TORQUE_CONTROL, forces=tau.tolist(), physicsClientId=cid
+        )
         if wrench is not None:
             p.applyExternalForce(body, -1, wrench[:3], self._q[:3], p.WORLD_FRAME, physicsClientId=cid)
             p.applyExternalTorque(body, -1, wrench[3:], p.WORLD_FRAME, physicsClientId=cid)
@@ -425,9 +468,10 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
         self._apply_tethers()
         p.stepSimulation(physicsClientId=cid)
         q, v = self._read_state()
-        if not (np.isfinite(q).all() and np.isfinite(v).all()):
+        if not (self._finite or (np.isfinite(q).all() and np.isfinite(v).all())):
             raise FloatingPointError(f"PyBullet state became non-finite at t={self.time + self._dt:.6f} s")
         self._q, self._v = q, v
+        self._quat_prev = self._quat_read
         self._steps += 1
         self._read_contacts()
         return self.state
@@ -514,6 +558,7 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
             v[3:6] += R.T @ dv[3:]
         self._write_state(q, v)
         self._q, self._v = self._read_state()
+        self._quat_prev = self._quat_read
         return self.state
 
     # ------------------------------------------------------------------ lifetime
