@@ -212,8 +212,15 @@ def test_sigint_to_the_demo_leaves_a_readable_partial_log(tmp_path):
     command = [sys.executable, "-m", "wbmpc.studies.demo", "--duration", "5", "--nodes", "8"]
     command += ["--no-replay", "--quiet", "--output", str(out)]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # As from a terminal: SIGINT at its default. A parent that ignores it (a pytest-xdist worker does) would
+    # pass SIG_IGN on, and Python then installs no KeyboardInterrupt handler at all.
     process = subprocess.Popen(
-        command, cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        command,
+        cwd=REPO_ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         first_chunk = out / "log.npz.parts" / "chunk_000000.npz"
