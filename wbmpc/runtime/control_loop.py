@@ -61,6 +61,7 @@ class ControlLoop:
         self.epoch = 1
         self.plan_seq, self.plan_meta = 0, None
         self._said: set[str] = set()
+        self.later_causes: list[tuple[float, str]] = []
 
     def now(self) -> float:
         """The run's clock [s]."""
@@ -129,13 +130,16 @@ class ControlLoop:
         return self._summary()
 
     def _trip(self, reason: str, now: float) -> None:
-        """Damping from now on; say why, once per reason."""
+        """Damping from now on; say why once (the first cause; later ones are only listed in the summary's
+        ``later_causes``)."""
         self.watchdog.trip(reason, now)
         self.controller.enter_damping()
-        if reason not in self._said:
-            self._said.add(reason)
+        if not self._said:
             self.metrics.watchdog_event(now, reason)
             print(f"[wbmpc.runtime] t={now:.3f} s: damping mode: {reason}", flush=True)
+        elif reason not in self._said and len(self._said) < 20:
+            self.later_causes.append((now, reason))
+        self._said.add(reason)
 
     def _record(self, now: float, command, lateness: float) -> None:
         log, controller = self.log, self.controller
@@ -176,6 +180,7 @@ class ControlLoop:
         summary["controller_problem_count"] = len(controller.problems)
         summary["clipped"] = dict(controller.clipped)
         summary["damping"] = bool(controller.damping)
+        summary["later_causes"] = [{"time_s": t, "reason": r} for t, r in self.later_causes]
         damped = np.flatnonzero(self.log["damping"])
         summary["damping_from_s"] = float(self.log["t"][damped[0]]) if damped.size else None
         if isinstance(self.client, FaultyRobot):
