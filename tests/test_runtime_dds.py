@@ -1,6 +1,5 @@
 """The DDS transport on loopback: a LowCmd_ crosses processes with its CRC intact; bad ids and names fail."""
 
-import random
 import socket
 import subprocess
 import sys
@@ -19,28 +18,12 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 DISCOVERY_TIMEOUT_S = 10.0
 
 
-def _ports_free(domain: int) -> bool:
-    """Whether the UDP ports of ``domain`` (7400 + 250 d + 0/1 multicast, + 10 + 2 i / + 11 + 2 i unicast for
-    participant index i) are unused on this host, so that no other test run shares the domain."""
-    base = 7400 + 250 * domain
-    ports = [base, base + 1] + [base + 10 + k for k in range(2 * dds.MAX_PARTICIPANTS_PER_HOST)]
-    for port in ports:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            try:
-                sock.bind(("127.0.0.1", port))
-            except OSError:
-                return False
-    return True
-
-
 @pytest.fixture
 def free_domain() -> int:
-    rng = random.Random()
-    for _ in range(100):
-        domain = rng.randint(100, dds.MAX_DOMAIN)
-        if domain != dds.DEFAULT_DOMAIN and _ports_free(domain):
-            return domain
-    pytest.skip("no DDS domain with free UDP ports found in 100..232")
+    domain = dds.free_domain()
+    if domain is None:
+        pytest.skip("no DDS domain with free UDP ports found in 100..232")
+    return domain
 
 
 def _busy_command(seq: int) -> m.LowCmd_:

@@ -1,7 +1,5 @@
 """The fast CDR codec (byte-equal to cyclonedds's) and the two DDS ends of a robot on loopback."""
 
-import random
-import socket
 import subprocess
 import sys
 import textwrap
@@ -34,28 +32,12 @@ class _Model:
 # ------------------------------------------------------------------ helpers
 
 
-def _ports_free(domain: int) -> bool:
-    """Whether the UDP ports of ``domain`` (discovery and the unicast ports of every participant index)
-    are unused on this host, so that no other test run shares the domain."""
-    base = 7400 + 250 * domain
-    ports = [base, base + 1] + [base + 10 + k for k in range(2 * dds.MAX_PARTICIPANTS_PER_HOST)]
-    for port in ports:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            try:
-                sock.bind(("127.0.0.1", port))
-            except OSError:
-                return False
-    return True
-
-
 @pytest.fixture
 def domain() -> int:
-    rng = random.Random()
-    for _ in range(100):
-        candidate = rng.randint(100, 230)
-        if candidate != dds.DEFAULT_DOMAIN and candidate not in dds._domains and _ports_free(candidate):
-            return candidate
-    pytest.skip("no DDS domain with free UDP ports found in 100..230")
+    domain = dds.free_domain()
+    if domain is None:
+        pytest.skip("no DDS domain with free UDP ports found in 100..232")
+    return domain
 
 
 def _random_value(rng, dtype: np.dtype):

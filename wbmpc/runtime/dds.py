@@ -35,6 +35,7 @@ bytes of a sample (encapsulation header included) and take them back with their 
 fixed-layout codecs of :mod:`wbmpc.runtime.cdr`.
 """
 
+import random
 import socket
 import threading
 import time
@@ -80,6 +81,32 @@ def check_interface(interface: str) -> str:
     if interface not in names:
         raise ValueError(f"no network interface {interface!r} on this machine (it has: {', '.join(names)})")
     return interface
+
+
+def domain_ports_free(domain: int) -> bool:
+    """Whether the UDP ports of ``domain`` on 127.0.0.1 are unused (discovery 7400 + 250 d + 0/1, and the
+    unicast ports + 10 + 2 i / + 11 + 2 i of every participant index i): no other run shares the domain."""
+    base = 7400 + 250 * check_domain(domain)
+    ports = [base, base + 1] + [base + 10 + k for k in range(2 * MAX_PARTICIPANTS_PER_HOST)]
+    for port in ports:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                return False
+    return True
+
+
+def free_domain(low: int = 100, high: int = MAX_DOMAIN, tries: int = 100, rng=None) -> int | None:
+    """A random domain in ``[low, high]`` other than :data:`DEFAULT_DOMAIN`, not used by this process and
+    with its ports free (:func:`domain_ports_free`), e.g. for a test run beside others; ``None`` if none of
+    ``tries`` candidates is."""
+    rng = rng or random.Random()
+    for _ in range(tries):
+        domain = rng.randint(low, high)
+        if domain != DEFAULT_DOMAIN and domain not in _domains and domain_ports_free(domain):
+            return domain
+    return None
 
 
 def cyclonedds_config(domain: int, interface: str) -> str:
