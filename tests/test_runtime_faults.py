@@ -39,7 +39,7 @@ def _run(tmp_path, faults: Faults, **changes):
     # A generous plan-age limit: a machine busy with other tests must not trip it; the faults that must
     # trip it do so by other causes (or by far more than this).
     config = RuntimeConfig(gait_schedule=GAIT, faults=faults, max_plan_age=0.5, **changes)
-    summary = run_runtime(config, tmp_path, progress=False)
+    summary = run_runtime(config, tmp_path)
     log = dict(np.load(tmp_path / "runtime_log.npz"))
     return summary, log
 

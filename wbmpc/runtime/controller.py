@@ -65,7 +65,7 @@ class RuntimeController:
         damping_kd: float = DAMPING_KD,
     ):
         self.robot, self.config = robot, config
-        _, per_mpc, per_low = config.steps()
+        _, _, per_low = config.steps()
         self.dt = per_low * config.plant.dt
         self.low, _ = joint_level(robot, config)
         nj = robot.nj

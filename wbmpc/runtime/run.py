@@ -115,7 +115,7 @@ def _loop_config(config: RuntimeConfig, hardware):
     return loop
 
 
-def run_runtime(config: RuntimeConfig, output: str | Path | None = None, progress: bool = True) -> dict:
+def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict:
     """Run the robot, the MPC worker and the controller on the wall clock; returns the summary.
 
     Raises:

@@ -343,8 +343,8 @@ class ClosedLoop:
         self._next_solve = step + self.per_mpc
         if self.sensor.is_ground_truth and self.estimator is None:
             self.q_meas, self.v_meas = self.state.q.copy(), self.state.v.copy()
-        t_plan = self.planner.plan_time(self.t, low.plan)
         plan = self.planner.plan(self.q_meas, self.v_meas, self.t, low.plan, record_delay=step > 0)
+        t_plan = self.planner.last_plan_time
         # The plan is ready when the whole call returns (parameters, prechecks, solve, unpacking).
         delay = _delay_steps(config, plan.timings.get("total", plan.solve_time))
         if delay == 0 or low.plan is None:  # no delay, or nothing to hold yet (the robot starts at rest)

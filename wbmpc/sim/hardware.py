@@ -288,8 +288,6 @@ class EstimatedState:
 
     def readings(self, q: np.ndarray, v: np.ndarray) -> tuple[ImuReading, JointReading]:
         """The IMU and encoder readings of the true state ``(q, v)`` one period after the previous one."""
-        if self.sensors._prev is None:
-            raise RuntimeError("call EstimatedState.reset(q0, v0) first")
         return self.sensors.readings(q, v)
 
     def measure(self, q: np.ndarray, v: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:

@@ -45,6 +45,7 @@ class Planner:
         commands: The commands of the last :meth:`plan` (:meth:`CommandSchedule.at`, ramped).
         ee_command: Its end-effector velocity command [m/s] (``None`` without an arm);
         ee_reference: the arm's reference position [m].
+        last_plan_time: When the last plan applies [s] (:meth:`plan_time` of its measurement).
     """
 
     def __init__(self, mpc: WholeBodyMPC, config: ClosedLoopConfig, q0: np.ndarray):
@@ -54,6 +55,7 @@ class Planner:
         self.arm = ArmCommander(mpc.robot, self.schedule, q0, config.arm_kp, config.arm_preview)
         self.ee_command, self.ee_reference = None, self.arm.ee_reference
         self.commands = self.schedule.at(0.0, self.gait)
+        self.last_plan_time = 0.0
         self.reset()
 
     def reset(self) -> None:
@@ -94,7 +96,7 @@ class Planner:
             cmd["base_velocity"], cmd["base_yaw_rate"] = self._ramp(
                 t, cmd["base_velocity"], cmd["base_yaw_rate"]
             )
-        t_plan = self.plan_time(t, plan_in_use)
+        t_plan = self.last_plan_time = self.plan_time(t, plan_in_use)
         commands = Commands(
             base_linear_velocity=cmd["base_velocity"],
             base_angular_velocity=np.array([0, 0, cmd["base_yaw_rate"]]),
