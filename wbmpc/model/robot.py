@@ -31,8 +31,8 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc import checks
-from wbmpc.model.errors import RobotModelError
-from wbmpc.model.inertials import check_inertials, read_inertials
+from wbmpc.model.errors import RobotModelError, RobotModelWarning
+from wbmpc.model.inertials import InertialProblem, _read, check_inertials, loadable_urdf_text, report
 
 if TYPE_CHECKING:
     from wbmpc.model.calibration import Calibration
@@ -81,6 +81,9 @@ class Robot:
         front_force_ratio: Share of the weight carried by the front feet in the nominal force split.
         calibration: The calibration applied to the model (:mod:`wbmpc.model.calibration`), ``None``: the
             nominal description. Its joint friction is for the low level (``calibration.joint_friction``).
+        inertial_problems: The URDF's link masses and inertias that only PyBullet would change (the loader
+            warned about them; the PyBullet plant refuses the URDF), each with its fixes
+            (:mod:`wbmpc.model.inertials`).
     """
 
     name: str
@@ -94,6 +97,7 @@ class Robot:
     foot_radius: float = 0.0
     front_force_ratio: float = 0.5
     calibration: Calibration | None = None
+    inertial_problems: tuple[InertialProblem, ...] = ()
 
     # --- sizes -------------------------------------------------------------------------------------------
     @property
@@ -267,6 +271,7 @@ def load_robot(
     front_force_ratio: float = 0.5,
     name: str | None = None,
     calibration: str | Path | Calibration | None = None,
+    inertia_checks: str = "warn",
 ) -> Robot:
     """Build a :class:`Robot` from any URDF (and optional SRDF) with a free-flyer base.
 
@@ -291,19 +296,27 @@ def load_robot(
             Calibration.apply`): the base CoM moved, its front force ratio (replacing
             ``front_force_ratio``), the armature in ``model.armature``; the robot's ``calibration``
             attribute keeps it (its friction is for the low level). Read and checked before the URDF.
+        inertia_checks: What to do with link masses or inertias that only PyBullet would change (below):
+            ``"warn"`` (default: a :class:`~wbmpc.model.errors.RobotModelWarning`; the MPC, planning and
+            the rigid plant use the model as written, the PyBullet plant refuses it), ``"error"`` (raise,
+            as for a model nobody can use) or ``"ignore"``. Either way they are kept in
+            ``robot.inertial_problems``.
 
     Returns:
         The robot, with every reference pose shifted vertically so the lowest foot contact point is at z = 0.
         ``reference_poses`` keeps the SRDF's order.
 
     Raises:
-        RobotModelError: missing file, unknown joint/frame/pose, an inconsistent description, or a link
-            whose mass or inertia PyBullet would not simulate as written (all such links are listed).
+        RobotModelError: missing file, unknown joint/frame/pose, an inconsistent description, or link
+            masses or inertias that make the model unusable (a malformed ``<inertial>``, a negative mass,
+            a moving body without mass or inertia); every problem of every link is listed in one message,
+            each with a fix that loads.
         FileNotFoundError: if ``calibration`` names no file.
         CalibrationError: for a calibration file with a bad field, or joints the robot does not have.
 
-    Mass and inertia checks (PyBullet loads every URDF link as a body of its own, so the plant only matches
-    the MPC model if each link's ``<inertial>`` is used as written):
+    Mass and inertia checks (:mod:`wbmpc.model.inertials`; all found in one pass, each with concrete fixes).
+    PyBullet loads every URDF link as a body of its own, so the PyBullet plant only matches the MPC model if
+    each link's ``<inertial>`` is used as written; these are PyBullet-only (see ``inertia_checks``):
 
     * every link needs an ``<inertial>`` with ``<mass value>`` and the six ``<inertia>`` attributes, all
       finite numbers, mass >= 0. Without one, Pinocchio makes the link massless but PyBullet gives it 1 kg
@@ -312,7 +325,11 @@ def load_robot(
     * a non-zero inertia tensor must be positive definite and satisfy the triangle inequalities of its
       principal moments (I1 + I2 >= I3 and permutations), else PyBullet replaces it with zero. A tensor
       at most :data:`wbmpc.model.inertials.NEGLIGIBLE_INERTIA_RATIO` of the rigid body it belongs to (the
-      links joined by fixed or locked joints) is accepted as a negligible placeholder;
+      links joined by fixed or locked joints) is accepted as a negligible placeholder.
+
+    Errors for everyone (raised whatever ``inertia_checks``): a malformed ``<inertial>`` or a negative
+    mass, and
+
     * every rigid body that moves (the floating base, and each movable joint's links with the links fixed
       to them) needs a positive mass and a positive-definite rotational inertia, else its dynamics are
       singular.
@@ -344,9 +361,16 @@ def load_robot(
             checks.number("foot_radius", foot_radius, low=0.0, high=1.0, unit="m")
     except ValueError as exc:
         raise RobotModelError(str(exc)) from None
+    if inertia_checks not in ("warn", "error", "ignore"):
+        raise RobotModelError(f"inertia_checks must be 'warn', 'error' or 'ignore', got {inertia_checks!r}")
     urdf_root = _parse_xml(urdf)
-    inertials = read_inertials(urdf, urdf_root)  # malformed or missing inertials: raised before Pinocchio
-    full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
+    inertials, _ = _read(urdf_root)
+    loadable = loadable_urdf_text(urdf_root)  # malformed inertials zeroed: every other problem is found too
+    if loadable is None:
+        full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
+    else:
+        full = pin.buildModelFromXML(loadable, pin.JointModelFreeFlyer())
+    full.name = name or urdf.stem  # the one name of the model in frame and joint errors
 
     for frame_name, spec in (extra_frames or {}).items():
         try:
@@ -403,8 +427,12 @@ def load_robot(
         _check_pose_covers_joints(full, srdf, urdf, reference_pose, locked_joints)
     locked = {jn: float(q_lock[full.idx_qs[jid]]) for jn, jid in zip(locked_joints, lock_ids, strict=True)}
     model = pin.buildReducedModel(full, lock_ids, q_lock) if lock_ids else full
-    model.name = name or urdf.stem
-    check_inertials(urdf, inertials, model)
+    model.name = full.name
+    problems = check_inertials(urdf, inertials, model, urdf_root)
+    if problems and (inertia_checks == "error" or not all(p.pybullet_only for p in problems)):
+        raise RobotModelError(report(urdf, problems))
+    if problems and inertia_checks == "warn":
+        warnings.warn(report(urdf, problems), RobotModelWarning, stacklevel=2)
 
     for frame in (*foot_frames, *([ee_frame] if ee_frame else [])):
         _frame_id(model, frame)
@@ -429,6 +457,7 @@ def load_robot(
         locked_joints=locked,
         foot_radius=radius,
         front_force_ratio=front_force_ratio,
+        inertial_problems=tuple(problems),
     )
     return robot if calibration is None else calibration.apply(robot)
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.model.inertials import check_for_pybullet
 from wbmpc.model.robot import RobotModelError, example_robot_data_dir
 
 __all__ = ["default_package_dirs", "offset_base_com", "preprocess_urdf", "resolve_mesh_path"]
@@ -75,31 +76,52 @@ def resolve_mesh_path(
     return str(path if path.is_absolute() else (urdf_dir / path).resolve())
 
 
-def preprocess_urdf(urdf_path: str | Path, locked_joints: Mapping[str, float] | None = None) -> str:
-    """URDF text ready for PyBullet: no visuals, absolute mesh paths, locked joints made fixed.
+def preprocess_urdf(
+    urdf_path: str | Path, locked_joints: Mapping[str, float] | None = None, check_inertials: bool = True
+) -> str:
+    """URDF text ready for PyBullet: no visuals, absolute mesh paths, locked joints made fixed; a
+    collision mesh whose file is missing is dropped (named in one warning).
 
     Args:
         urdf_path: The original URDF.
         locked_joints: ``{joint name: angle}`` [rad] (or [m] for prismatic joints) to turn into fixed joints
             at that value.
+        check_inertials: Refuse link masses and inertias PyBullet would not simulate as written
+            (:func:`wbmpc.model.inertials.check_for_pybullet`: the check lives where PyBullet consumes
+            them; the robot loader only warns).
 
     Returns:
         The processed URDF as a string.
 
     Raises:
-        RobotModelError: If a locked joint is missing or not revolute, continuous or prismatic.
+        RobotModelError: If a locked joint is missing or not revolute, continuous or prismatic, or (with
+            ``check_inertials``) listing every link mass or inertia PyBullet would change, with its fixes.
     """
     urdf_path = Path(urdf_path)
+    if check_inertials:
+        check_for_pybullet(urdf_path, locked_joints)
     root = ET.fromstring(urdf_path.read_text())
     for link in root.iter("link"):
         for visual in link.findall("visual"):
             link.remove(visual)
-    for mesh in root.iter("mesh"):
-        filename = mesh.get("filename", "")
-        resolved = resolve_mesh_path(filename, urdf_path)
-        if resolved.startswith("package://"):
-            warnings.warn(f"mesh {filename} not found; PyBullet will skip it", stacklevel=2)
-        mesh.set("filename", resolved)
+    missing = []
+    for link in root.iter("link"):
+        for collision in link.findall("collision"):
+            mesh = collision.find("geometry/mesh")
+            if mesh is None:
+                continue
+            filename = mesh.get("filename", "")
+            resolved = resolve_mesh_path(filename, urdf_path)
+            if not Path(resolved).is_file():
+                missing.append(filename)
+                link.remove(collision)
+            mesh.set("filename", resolved)
+    if missing:
+        warnings.warn(
+            f"{urdf_path}: collision mesh files not found, those collision shapes are left out of the "
+            f"PyBullet plant: {', '.join(dict.fromkeys(missing))}",
+            stacklevel=2,
+        )
     joints = {joint.get("name"): joint for joint in root.iter("joint") if joint.get("type")}
     for name, value in (locked_joints or {}).items():
         joint = joints.get(name)
