@@ -462,6 +462,73 @@ def load_robot(
     return robot if calibration is None else calibration.apply(robot)
 
 
+_LEG_TOKENS = {  # how descriptions name the legs, in FOOT_NAMES order (FL, FR, RL, RR)
+    "FL": ("fl", "lf", "front_left", "left_front", "frontleft", "leftfront"),
+    "FR": ("fr", "rf", "front_right", "right_front", "frontright", "rightfront"),
+    "RL": ("rl", "lh", "hl", "bl", "lb", "rear_left", "left_rear", "back_left", "left_hind", "hind_left"),
+    "RR": (
+        "rr",
+        "rh",
+        "hr",
+        "br",
+        "rb",
+        "rear_right",
+        "right_rear",
+        "back_right",
+        "right_hind",
+        "hind_right",
+    ),
+}
+_FOOT_WORDS = ("foot", "toe", "feet", "tip")
+_EE_NAMES = ("ee", "ee_link", "end_effector", "gripper_center", "gripper", "tool0", "tool", "hand", "tcp")
+
+
+def find_contact_frames(
+    urdf: str | Path, srdf: str | Path | None = None
+) -> tuple[tuple[str, ...] | None, str | None]:
+    """Foot frames (FL, FR, RL, RR) and the arm's end-effector frame of a description, from its SRDF's
+    ``<end_effector>`` entries and the usual link names (``FL_foot``, ``LF_FOOT``, ``front_left_foot``;
+    ``gripper``, ``ee_link``, ``tool0``, ``end_effector``...).
+
+    Returns:
+        The feet (``None`` unless exactly one candidate was found per leg) and the end effector (``None``
+        unless exactly one candidate was found).
+
+    Raises:
+        RobotModelError: a file is not valid XML.
+    """
+    links = [link.get("name") for link in _parse_xml(Path(urdf)).findall("link")]
+    declared = []
+    if srdf is not None:
+        for element in _parse_xml(Path(srdf)).findall("end_effector"):
+            declared += [element.get("parent_link"), element.get("name")]
+    declared = [name for name in dict.fromkeys(declared) if name in links]
+
+    def leg_of(name: str) -> str | None:
+        lower = name.lower().replace("-", "_")
+        legs = [leg for leg, tokens in _LEG_TOKENS.items() if any(lower.startswith(t + "_") for t in tokens)]
+        return legs[0] if len(legs) == 1 else None
+
+    def feet_among(names) -> tuple[str, ...] | None:
+        found: dict[str, list[str]] = {leg: [] for leg in _LEG_TOKENS}
+        for name in names:
+            leg = leg_of(name)
+            if leg is not None and any(word in name.lower() for word in _FOOT_WORDS):
+                found[leg].append(name)
+        if all(len(names_) == 1 for names_ in found.values()):
+            return tuple(found[leg][0] for leg in _LEG_TOKENS)
+        return None
+
+    feet = feet_among(declared) or feet_among(links)
+    others = [name for name in declared if name not in (feet or ())]
+    ee = others[0] if len(others) == 1 else None
+    if ee is None:
+        named = [name for name in links if name.lower() in _EE_NAMES]
+        ranked = sorted(named, key=lambda name: _EE_NAMES.index(name.lower()))
+        ee = ranked[0] if ranked else None
+    return feet, ee
+
+
 def _read_calibration(calibration) -> Calibration | None:
     """A :class:`~wbmpc.model.calibration.Calibration` from a path or an instance (``None`` passes)."""
     from wbmpc.model.calibration import Calibration

@@ -46,3 +46,29 @@ def writable_file(parser: argparse.ArgumentParser, flag: str, path: Path, exampl
     if path.is_dir():
         parser.error(f"{flag} {path} is a folder; give a file path such as {path / example}")
     writable_folder(parser, flag, path.parent, f"{flag} {path}: its folder {path.parent}")
+
+
+def user_robot(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--urdf``/``--srdf``/``--feet``/``--ee``/``--lock``/``--pose``: files that exist, options that go
+    with ``--urdf`` only, four feet (checked before any model is loaded)."""
+    given = [flag for flag in ("srdf", "feet", "ee", "lock", "pose") if getattr(args, flag) is not None]
+    if args.urdf is None:
+        if given:
+            parser.error(f"--{given[0]} describes a robot of your own: give its --urdf too")
+        return
+    if args.robot is not None:
+        parser.error(f"--robot {args.robot} and --urdf {args.urdf}: give one of them")
+    for flag in ("urdf", "srdf"):
+        path = getattr(args, flag)
+        if path is not None and not path.is_file():
+            what = "a folder, not a file" if path.is_dir() else "no such file"
+            parser.error(f"--{flag} {path}: {what}")
+    if args.srdf is None:
+        parser.error(f"--urdf {args.urdf}: give its --srdf too (its group_state gives the pose to stand in)")
+    if args.feet is not None:
+        feet = [name.strip() for name in args.feet.split(",")]
+        if len(feet) != 4 or not all(feet) or len(set(feet)) != 4:
+            parser.error(f"--feet must be four different frame names FL,FR,RL,RR, got {args.feet!r}")
+        args.feet = ",".join(feet)
+    if args.ee is not None and not args.ee.strip():
+        parser.error("--ee must be a frame name or none")

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from wbmpc.quick import pick
+from wbmpc.studies import cli_checks
 from wbmpc.studies.cli_checks import MAX_NODES
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -24,7 +25,36 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m wbmpc.studies.demo", description=__doc__.splitlines()[0])
-    parser.add_argument("--robot", default="b1_z1", help="built-in robot: b1_z1 (default) or b1")
+    parser.add_argument("--robot", default=None, help="built-in robot: b1_z1 (default) or b1")
+    parser.add_argument(
+        "--urdf",
+        type=Path,
+        default=None,
+        help="a robot of your own: its URDF (free-flyer base; instead of --robot). Link masses or inertias "
+        "that only PyBullet would change are a note (the rigid plant runs) and refused with --plant pybullet",
+    )
+    parser.add_argument(
+        "--srdf",
+        type=Path,
+        default=None,
+        help="with --urdf: its SRDF (a group_state: the stand pose)",
+    )
+    parser.add_argument(
+        "--feet",
+        default=None,
+        help="with --urdf: the four foot frames FL,FR,RL,RR (default: found from the SRDF's end_effector "
+        "entries or names such as FL_foot, LF_FOOT, front_left_foot)",
+    )
+    parser.add_argument(
+        "--ee",
+        default=None,
+        help="with --urdf: the arm's end-effector frame, or none (default: found from the SRDF or names such "
+        "as gripper, ee_link, tool0)",
+    )
+    parser.add_argument("--lock", default=None, help="with --urdf: joints to lock at the stand pose, j1,j2")
+    parser.add_argument(
+        "--pose", default=None, help="with --urdf: the SRDF pose to stand in (default: the first)"
+    )
     parser.add_argument(
         "--calibration",
         type=Path,
@@ -148,6 +178,7 @@ def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -
             parser.error(f"{flag} must be a finite number >= 0, got {value}")
     if args.calibration is not None and not args.calibration.is_file():
         parser.error(f"--calibration {args.calibration}: no such file")
+    cli_checks.user_robot(parser, args)
     if not abs(args.speed) < float("inf"):
         parser.error(f"--speed must be finite, got {args.speed}")
     try:  # a bad output folder fails now, not after the simulation
@@ -178,11 +209,23 @@ def main(argv: list[str] | None = None) -> dict:
             gait, default_duration = make_gait(args.gait, args.period), 10.0
     except ValueError as exc:
         parser.error(f"--gait {args.gait!r}: {exc}")
-    try:
-        robot = load(args.robot, **({"calibration": args.calibration} if args.calibration else {}))
-    except ValueError as exc:
+    if args.urdf is not None:
+        robot = _user_robot(parser, args)
+    else:
+        args.robot = args.robot or "b1_z1"
+        try:
+            robot = load(args.robot, **({"calibration": args.calibration} if args.calibration else {}))
+        except ValueError as exc:
+            parser.error(
+                f"--robot {args.robot!r}{f' --calibration {args.calibration}' if args.calibration else ''}: "
+                f"{exc}"
+            )
+    if args.plant == "pybullet" and robot.inertial_problems:
+        from wbmpc.model.inertials import report
+
         parser.error(
-            f"--robot {args.robot!r}{f' --calibration {args.calibration}' if args.calibration else ''}: {exc}"
+            f"--plant pybullet: {report(robot.urdf_path, robot.inertial_problems)}\nFix them (any suggestion "
+            "above loads) or run on --plant rigid"
         )
     print(robot.summary())
     for note in getattr(gait, "notes", ()):
@@ -230,6 +273,69 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"summary copied to {target}")
     print(f"outputs in {out}")
     return summary
+
+
+def _user_robot(parser: argparse.ArgumentParser, args: argparse.Namespace):
+    """The robot of ``--urdf``/``--srdf``: feet and end effector given or found; a load error or a frame
+    that cannot be found is a one-line reason (exit 2), a PyBullet-only mass or inertia problem a note."""
+    import warnings
+
+    from wbmpc.model.errors import RobotModelError, RobotModelWarning
+    from wbmpc.model.robot import find_contact_frames, load_robot
+
+    try:
+        found_feet, found_ee = find_contact_frames(args.urdf, args.srdf)
+    except RobotModelError as exc:
+        parser.error(str(exc))
+    feet = tuple(args.feet.split(",")) if args.feet else found_feet
+    if feet is None:
+        parser.error(
+            f"--urdf {args.urdf}: the four feet were not found from "
+            f"{'the SRDF or ' if args.srdf else ''}the link names: give --feet FL,FR,RL,RR (four frame names)"
+        )
+    ee = None if args.ee == "none" else args.ee or found_ee
+    locked = tuple(args.lock.split(",")) if args.lock else ()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RobotModelWarning)
+        try:
+            robot = load_robot(
+                args.urdf,
+                args.srdf,
+                foot_frames=feet,
+                ee_frame=ee,
+                locked_joints=locked,
+                reference_pose=args.pose,
+                calibration=args.calibration,
+            )
+        except (RobotModelError, ValueError) as exc:
+            parser.error(f"--urdf {args.urdf}: {exc}")
+    for warning in caught:
+        if issubclass(warning.category, RobotModelWarning):
+            if args.plant != "pybullet":
+                print(f"note: {warning.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    if ee is None and args.ee != "none":
+        arm = [name for name in robot.joint_names if _off_legs(robot, name)]
+        if arm:
+            parser.error(
+                f"--urdf {args.urdf}: no end-effector frame found for the joints off the legs {arm}: give "
+                "--ee FRAME (the arm's tool frame), or --ee none to treat them as joints without a task"
+            )
+    return robot
+
+
+def _off_legs(robot, joint: str) -> bool:
+    """Whether ``joint`` moves none of the feet."""
+    model = robot.model
+    target = model.getJointId(joint)
+    for frame in robot.foot_frames:
+        j = model.frames[model.getFrameId(frame)].parentJoint
+        while j > 1:
+            if j == target:
+                return False
+            j = model.parents[j]
+    return True
 
 
 def _interrupted(log_path: Path) -> int:
