@@ -7,10 +7,12 @@ if they cannot be loaded).
 
 from __future__ import annotations
 
+import copy
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -25,8 +27,10 @@ def visual_model(robot: Robot) -> tuple[pin.Model, pin.GeometryModel]:
     The full model and its visual geometry are read from ``robot.urdf_path`` (mesh references resolve as
     in :func:`resolve_mesh_path`, the rule the PyBullet plant uses too), then reduced with the locked joints
     at their ``robot.locked_joints`` angles. Frames that ``robot.model`` has but the
-    URDF does not (the end-effector tool point) are copied over. If the meshes cannot be loaded, each mesh
-    is replaced by the link's primitive collision shapes and a warning is issued: the viewer still works.
+    URDF does not (the end-effector tool point) are copied over. A visual mesh whose file is missing is
+    replaced by primitive shapes (the link's collision shapes, else sticks to its child joints, else a
+    small sphere), mesh by mesh: every link keeps a visual, the others keep their meshes, and one warning
+    names every missing file.
 
     Args:
         robot: The robot.
@@ -74,29 +78,120 @@ def visual_model(robot: Robot) -> tuple[pin.Model, pin.GeometryModel]:
     return model, geom
 
 
-def _urdf_with_resolved_meshes(urdf: str, package_dirs: Sequence[str]) -> str:
-    """URDF text with every mesh ``filename`` made absolute by :func:`resolve_mesh_path`."""
+_STAND_IN_RADIUS = 0.015  # [m] of the sticks and spheres that stand in for a link without a primitive shape
+
+
+def _urdf_with_stand_ins(
+    urdf: str, package_dirs: Sequence[str], every_mesh: bool = False
+) -> tuple[str, list[str]]:
+    """URDF text with every mesh ``filename`` made absolute by :func:`resolve_mesh_path`, each visual mesh
+    whose file is missing (every visual mesh with ``every_mesh``) replaced by primitive shapes, and the
+    mesh references replaced (in file order, once each).
+
+    A replaced visual shows the link's primitive collision shapes (boxes, cylinders, spheres) if it has
+    any, else a stick from the link's origin to each child joint, else a small sphere: every link that had
+    a visual keeps one.
+    """
     root = ET.parse(urdf).getroot()
-    for mesh in root.iter("mesh"):
-        mesh.set("filename", resolve_mesh_path(mesh.get("filename", ""), urdf, package_dirs))
-    return ET.tostring(root, encoding="unicode")
+    children: dict[str, list[np.ndarray]] = {}
+    for joint in root.iter("joint"):
+        parent, origin = joint.find("parent"), joint.find("origin")
+        xyz = np.zeros(3) if origin is None else np.array(origin.get("xyz", "0 0 0").split(), dtype=float)
+        if parent is not None:
+            children.setdefault(parent.get("link"), []).append(xyz)
+    missing = []
+    for link in root.iter("link"):
+        replaced = False
+        for visual in link.findall("visual"):
+            mesh = visual.find("geometry/mesh")
+            if mesh is None:
+                continue
+            filename = mesh.get("filename", "")
+            resolved = resolve_mesh_path(filename, urdf, package_dirs)
+            if every_mesh or not Path(resolved).is_file():
+                missing.append(filename)
+                link.remove(visual)
+                if not replaced:
+                    for stand_in in _stand_ins(link, visual, children.get(link.get("name"), [])):
+                        link.append(stand_in)
+                    replaced = True
+            else:
+                mesh.set("filename", resolved)
+        for collision in link.findall("collision"):
+            mesh = collision.find("geometry/mesh")
+            if mesh is not None:  # the visual model has no use for collisions: a missing file must not fail
+                link.remove(collision)
+    return ET.tostring(root, encoding="unicode"), list(dict.fromkeys(missing))
+
+
+def _stand_ins(link: ET.Element, visual: ET.Element, child_origins: Sequence[np.ndarray]) -> list[ET.Element]:
+    """Visual elements of primitive shapes for ``link`` (see :func:`_urdf_with_stand_ins`)."""
+    shapes = []
+    for collision in link.findall("collision"):
+        geometry = collision.find("geometry")
+        if geometry is not None and any(
+            geometry.find(tag) is not None for tag in ("box", "cylinder", "sphere")
+        ):
+            stand_in = copy.deepcopy(collision)
+            stand_in.tag = "visual"
+            stand_in.attrib.pop("name", None)
+            shapes.append(stand_in)
+    if shapes:
+        return shapes
+    for offset in child_origins:
+        length = float(np.linalg.norm(offset))
+        if length < 1e-3:
+            continue
+        rotation = pin.Quaternion.FromTwoVectors(
+            np.array([0.0, 0.0, 1.0]), offset / length
+        ).toRotationMatrix()
+        rpy = " ".join(f"{x:.9g}" for x in pin.rpy.matrixToRpy(rotation))
+        xyz = " ".join(f"{x:.9g}" for x in offset / 2)
+        shapes.append(
+            ET.fromstring(
+                f'<visual><origin xyz="{xyz}" rpy="{rpy}"/><geometry><cylinder radius="{_STAND_IN_RADIUS}" '
+                f'length="{length:.9g}"/></geometry></visual>'
+            )
+        )
+    if shapes:
+        return shapes
+    origin = visual.find("origin")
+    sphere = ET.fromstring(
+        f'<visual><geometry><sphere radius="{_STAND_IN_RADIUS * 1.5}"/></geometry></visual>'
+    )
+    if origin is not None:
+        sphere.insert(0, copy.deepcopy(origin))
+    return [sphere]
 
 
 @lru_cache(maxsize=4)
 def _full_visual_model(urdf: str, package_dirs: tuple[str, ...]) -> tuple[pin.Model, pin.GeometryModel]:
-    """Full model and visual geometry of a URDF (cached: loading the B1 + Z1 meshes takes seconds)."""
+    """Full model and visual geometry of a URDF (cached: loading the B1 + Z1 meshes takes seconds).
+
+    A visual mesh whose file is missing is replaced by primitive shapes, mesh by mesh, and every missing
+    file is named in one warning; if a mesh on disk cannot be read, every mesh is replaced.
+    """
     full = pin.buildModelFromUrdf(urdf, pin.JointModelFreeFlyer())
-    try:
-        loader = _mesh_loader()
-        kwargs = {"package_dirs": list(package_dirs)} | ({"mesh_loader": loader} if loader else {})
-        text = _urdf_with_resolved_meshes(urdf, package_dirs)
-        geom = pin.buildGeomFromUrdfString(full, text, pin.GeometryType.VISUAL, **kwargs)
-    except (ValueError, RuntimeError, OSError) as exc:
+    loader = _mesh_loader()
+    kwargs = {"package_dirs": list(package_dirs)} | ({"mesh_loader": loader} if loader else {})
+    text, missing = _urdf_with_stand_ins(urdf, package_dirs)
+    if missing:
         warnings.warn(
-            f"could not load the visual meshes of {urdf} ({exc}); showing primitive shapes instead",
+            f"{urdf}: {len(missing)} visual mesh file{'s' if len(missing) > 1 else ''} not found, shown as "
+            f"primitive shapes (the link's collision shapes, or sticks to its child joints): "
+            f"{', '.join(missing)}",
             stacklevel=3,
         )
-        geom = pin.buildGeomFromUrdfString(full, _urdf_without_meshes(urdf), pin.GeometryType.VISUAL)
+    try:
+        geom = pin.buildGeomFromUrdfString(full, text, pin.GeometryType.VISUAL, **kwargs)
+    except (ValueError, RuntimeError, OSError) as exc:
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        warnings.warn(
+            f"could not load the visual meshes of {urdf} ({reason}); showing primitive shapes instead",
+            stacklevel=3,
+        )
+        text, _ = _urdf_with_stand_ins(urdf, package_dirs, every_mesh=True)
+        geom = pin.buildGeomFromUrdfString(full, text, pin.GeometryType.VISUAL)
     return full, geom
 
 
@@ -108,19 +203,3 @@ def _mesh_loader():
         return coal.CachedMeshLoader(coal.NODE_TYPE.BV_OBB)
     except (ImportError, AttributeError, TypeError):
         return None
-
-
-def _urdf_without_meshes(urdf: str) -> str:
-    """URDF text where every mesh visual is replaced by the link's primitive collision shapes."""
-    root = ET.parse(urdf).getroot()
-    for link in root.iter("link"):
-        elements = link.findall("visual") + link.findall("collision")
-        meshes = [e for e in elements if e.find("geometry/mesh") is not None]
-        for element in meshes:
-            link.remove(element)
-        if any(e.tag == "visual" for e in meshes):
-            for collision in link.findall("collision"):
-                stand_in = ET.fromstring(ET.tostring(collision))
-                stand_in.tag = "visual"
-                link.append(stand_in)
-    return ET.tostring(root, encoding="unicode")
