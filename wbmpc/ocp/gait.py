@@ -18,11 +18,28 @@ plant (sampled at its own steps) can never put it on different sides of an MPC t
 :class:`Gait` is a one-segment schedule. Both offer the same ``sample`` / ``contact`` / ``swing_phase``.
 A schedule's segments also carry their base velocity commands (:meth:`GaitSchedule.velocity_at`): a stand
 segment stands still unless told otherwise, e.g. ``"stand:2,trot@0.5:4,trot@0.3/0/0.3:4"``.
+
+Custom gaits: a :class:`Gait` with its own ``swing_fraction`` and ``offsets`` covers any periodic gait in
+which each foot swings once per cycle (``Gait("gallop", 0.6, 0.3, (0.0, 0.1, 0.5, 0.6))``). For any other
+contact pattern, subclass :class:`Gait` and override :meth:`Gait.sample_ticks`, returning
+``GaitSample(contact, swing_phase)`` (``n_contacts`` and ``swing_duration`` may be left out: they are
+filled in, the swing duration as ``swing_fraction * period``); the MPC, schedules, the plant and the low
+level then use it. Override ``sample_ticks``, not ``sample`` (schedules sample in integer ticks)::
+
+    class ThreeLegged(Gait):  # FL held up at mid-swing, the other feet as the walk it is made from
+        def sample_ticks(self, ticks):
+            base = super().sample_ticks(ticks)
+            contact = base.contact.copy()
+            contact[0] = False
+            phase = np.where(contact, 0.0, base.swing_phase)
+            phase[0] = 0.5
+            return GaitSample(contact, phase)
 """
 
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -45,12 +62,15 @@ def _finite(name: str, value, positive: bool = False) -> float:
 
 class GaitSample(NamedTuple):
     """Gait sampled at n times: contact (4, n) bool (True = stance), swing_phase (4, n) in [0, 1),
-    n_contacts (n,) int, swing_duration (4, n) [s] of the swing in progress (0 for stance feet)."""
+    n_contacts (n,) int, swing_duration (4, n) [s] of the swing in progress (0 for stance feet).
+
+    A custom gait's :meth:`Gait.sample_ticks` may leave ``n_contacts`` and ``swing_duration`` out
+    (``None``): the gait fills them in (the swing duration as its ``swing_fraction * period``)."""
 
     contact: np.ndarray
     swing_phase: np.ndarray
-    n_contacts: np.ndarray
-    swing_duration: np.ndarray
+    n_contacts: np.ndarray | None = None
+    swing_duration: np.ndarray | None = None
 
 
 def to_ticks(times, tick: float = SCHEDULE_TICK) -> np.ndarray:
@@ -111,6 +131,55 @@ class Gait:
             self, "_offset_ticks", np.rint(offsets * period_ticks).astype(np.int64) % period_ticks
         )
         object.__setattr__(self, "_offset_column", self._offset_ticks[:, None])
+
+    def __init_subclass__(cls, **kwargs):
+        """A subclass's ``sample_ticks`` (a custom contact pattern) is checked and completed: its samples
+        get ``n_contacts`` and ``swing_duration`` if it left them out."""
+        super().__init_subclass__(**kwargs)
+        if "sample" in cls.__dict__ and "sample_ticks" not in cls.__dict__:
+            raise TypeError(
+                f"{cls.__name__} overrides Gait.sample: override sample_ticks(self, ticks) instead (integer "
+                "ticks of self.tick, time = ticks * self.tick), which the MPC, gait schedules, the plant and "
+                "the low level all use; return GaitSample(contact, swing_phase)"
+            )
+        custom = cls.__dict__.get("sample_ticks")
+        if custom is None or getattr(custom, "_completes", False):
+            return
+
+        @functools.wraps(custom)
+        def sample_ticks(self, ticks):
+            ticks = np.asarray(ticks, dtype=np.int64)
+            return self._completed(custom(self, ticks), ticks.size)
+
+        sample_ticks._completes = True
+        cls.sample_ticks = sample_ticks
+
+    def _completed(self, sample, n: int) -> GaitSample:
+        """A custom gait's sample checked (shapes, phases in [0, 1]) and completed."""
+        who = f"{type(self).__name__}.sample_ticks"
+        if not isinstance(sample, GaitSample):
+            raise TypeError(
+                f"{who} must return a GaitSample(contact, swing_phase), got {type(sample).__name__}"
+            )
+        contact = np.asarray(sample.contact, dtype=bool)
+        phase = np.asarray(sample.swing_phase, dtype=float)
+        for label, array in (("contact", contact), ("swing_phase", phase)):
+            if array.shape != (4, n):
+                raise ValueError(f"{who}: {label} must have shape (4, {n}) (feet x times), got {array.shape}")
+        if not np.all((phase >= 0.0) & (phase <= 1.0)):
+            raise ValueError(f"{who}: swing_phase must be in [0, 1] (the elapsed fraction of the swing)")
+        n_contacts = contact.sum(axis=0) if sample.n_contacts is None else np.asarray(sample.n_contacts)
+        if sample.swing_duration is None:
+            if np.any(~contact) and self.swing_duration <= 0.0:
+                raise ValueError(
+                    f"{who}: feet swing but swing_fraction is 0, so no swing duration is known: give the "
+                    "gait a swing_fraction > 0 (swing duration = swing_fraction * period) or return "
+                    "swing_duration (4, n) [s]"
+                )
+            duration = np.where(contact, 0.0, self.swing_duration)
+        else:
+            duration = np.asarray(sample.swing_duration, dtype=float)
+        return GaitSample(contact, phase, n_contacts, duration)
 
     @property
     def swing_duration(self) -> float:
