@@ -45,3 +45,23 @@ def test_pd_and_clipping_are_counted():
 def test_no_plan_is_a_clear_error():
     with pytest.raises(RuntimeError, match="no MPC plan yet"):
         LowLevelController().reference(0.0)
+
+
+def test_references_follow_the_horizon_past_the_torque_nodes_and_stay_bounded():
+    """Only the first nodes have torques (n_tau = 2 here), but q, v, a exist at every node: a plan kept in
+    use past its torque nodes (a slow solve) must give the references of the interval that holds t, not
+    v_des = v_1 + a_1 (t - t_1) growing without bound, and hold them at the horizon's end."""
+    p = plan()
+    p.tau = p.tau[:2]  # torques at nodes 0 and 1 only
+    p.v = np.array([np.r_[np.zeros(6), [k, -k]] for k in (1.0, 2.0, 3.0, 4.0)])  # differs per node
+    p.a = np.array([np.r_[np.zeros(6), [a, -a]] for a in (10.0, -5.0, 7.0)])
+    p.q = np.array([np.r_[np.zeros(7), [k, 2 * k]] for k in (0.0, 0.1, 0.2, 0.3)])
+    low = LowLevelController()
+    low.update(p)
+    ref = low.reference(0.04)  # on [t2, t3] = [0.03, 0.07], past the torque nodes
+    assert ref.tau_ff == pytest.approx([10.0, 10.0])  # the last torque node, held
+    assert ref.q_des == pytest.approx([0.2 + 3.0 * 0.01, 0.4 - 3.0 * 0.01])
+    assert ref.v_des == pytest.approx([3.0 + 7.0 * 0.01, -3.0 - 7.0 * 0.01])
+    late = low.reference(10.0)  # long after the horizon's end: held at its last interval's end
+    assert late.v_des == pytest.approx([3.0 + 7.0 * 0.04, -3.0 - 7.0 * 0.04])
+    assert late.q_des == pytest.approx([0.2 + 3.0 * 0.04, 0.4 - 3.0 * 0.04])

@@ -7,8 +7,9 @@ Between MPC updates the first nodes of the latest plan are interpolated linearly
     q_{des}(t) = q_k^* + v_k^*(t - t_k),\\quad v_{des}(t) = v_k^* + a_k^*(t - t_k),
 
 on the interval ``[t_k, t_{k+1}]`` that contains ``t`` (node 0 first; if no new plan arrived by ``t_1``
-the controller moves on to the interval of node 1, and so on while torques exist), and a PD term closes
-the loop at joint level:
+the controller moves on to the interval of node 1, and so on: the references over the whole horizon, the
+feed-forward while torques exist, held at the last torque node beyond), and a PD term closes the loop at
+joint level:
 
 .. math::  \\tau = \\tau_{ff} + K_p (q_{des} - q) + K_d (v_{des} - v) + \\tau_f(v_{des}).
 
@@ -113,15 +114,21 @@ class LowLevelController:
             raise RuntimeError("LowLevelController has no MPC plan yet: call update() first")
         times = self._times
         n_tau = len(plan.tau)
-        # Interval index: stay on the last interval that has a torque at both ends, hold beyond it.
+        # The feed-forward: on the last interval with a torque at both ends, held at its end beyond it.
         k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, max(n_tau - 2, 0)))
-        s = t - times[k]
         if n_tau >= 2:
-            tau_ff = plan.tau[k] + (plan.tau[k + 1] - plan.tau[k]) * min(s, plan.dts[k]) / plan.dts[k]
+            s = min(t - times[k], plan.dts[k])
+            tau_ff = plan.tau[k] + (plan.tau[k + 1] - plan.tau[k]) * s / plan.dts[k]
         else:
             tau_ff = plan.tau[0]
-        q_des = plan.q[k][7:] + plan.v[k][6:] * s
-        v_des = plan.v[k][6:] + plan.a[k][6:] * s
+        # The joint references: on the interval that holds t, over the whole horizon (q, v and a exist at
+        # every node), held at the horizon's end. Extrapolating the torque intervals' last one instead lets
+        # v_des = v_k + a_k (t - t_k) grow without bound while a slow solve keeps an old plan in use (a
+        # swing leg's reference reached 8 rad/s in 0.16 s on the wall clock).
+        j = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(plan.a) - 1))
+        s = min(t - times[j], plan.dts[j])
+        q_des = plan.q[j][7:] + plan.v[j][6:] * s
+        v_des = plan.v[j][6:] + plan.a[j][6:] * s
         if self.friction is None:
             return JointCommand(tau_ff, q_des, v_des)
         friction = self.friction.torque(v_des)

@@ -3,7 +3,11 @@
 Each tick of :class:`ControlLoop` (absolute deadlines, :class:`~wbmpc.runtime.clock.DeadlineLoop`):
 
 1. read the newest observation (``None``: none arrived; the estimate stands) and estimate;
-2. take the newest plan of the current epoch from the worker, if one came;
+2. take the newest plan of the current epoch from the worker, if one came; a plan made with delay
+   compensation starts in the future (at its measurement time plus the expected delay): it waits until
+   then and the plan in use goes on, as in the simulated loop (:class:`~wbmpc.sim.closed_loop.ClosedLoop`
+   delivers a plan at its start). Used early, its first interval would be extrapolated backwards (the
+   feed-forward by up to a whole 10 ms step) and the arm, light and stiffly controlled, rings;
 3. the watchdog: a trip (no new plan for ``max_plan_age``, ``max_overruns`` overruns in a row, the worker
    dead, an unusable observation, a restarted robot, no observation for ``max_observation_gap``) puts the
    controller in the damping mode for good; the reason is printed and recorded once;
@@ -59,7 +63,9 @@ class ControlLoop:
         self.watchdog = Watchdog(config.max_plan_age, config.max_overruns)
         self.log = {key: [] for key in LOG_FIELDS}
         self.epoch = 1
-        self.plan_seq, self.plan_meta = 0, None
+        self.plan_seq, self.plan_meta = 0, None  # the newest plan received
+        self.used_seq = 0  # the plan in use
+        self.pending: list = []  # (plan, seq) received, not started yet, oldest first
         self._said: set[str] = set()
         self.later_causes: list[tuple[float, str]] = []
 
@@ -102,9 +108,10 @@ class ControlLoop:
                 self._trip(f"no observation from the robot for {now - last_obs:.3f} s", now)
             got = self.plans.latest(self.plan_seq, self.epoch)
             if got is not None:
-                controller.offer(got[0])
                 self.plan_seq, self.plan_meta = got[1].seq, got[1]
                 self.metrics.plan_received(self.plan_seq, self.plan_meta.observation_time)
+                self.pending.append((got[0], got[1].seq))
+            self._start_due_plans(now)
             if not self.worker.is_alive():
                 self._trip("the MPC worker died", now)
             state = self.watchdog.check(now, self.plan_meta.observation_time, tick.overrun)
@@ -113,7 +120,7 @@ class ControlLoop:
             command = controller.command(now)
             self.client.write(command)
             if not command.damping:
-                self.metrics.plan_used(self.plan_seq, now)
+                self.metrics.plan_used(self.used_seq, now)
                 self.observations.publish(now, controller.q_hat, controller.v_hat, epoch=self.epoch)
             compute = loop.tick_done()
             period = None if last_wake is None else (tick.wake_ns - last_wake) / 1e9
@@ -128,6 +135,16 @@ class ControlLoop:
             )
             self._record(now, command, tick.lateness_s)
         return self._summary()
+
+    def _start_due_plans(self, now: float) -> None:
+        """Hand the newest pending plan whose start time has come to the controller (older pending plans
+        are superseded by it and dropped)."""
+        due = [i for i, (plan, _) in enumerate(self.pending) if plan.t <= now + 1e-9]
+        if due:
+            plan, seq = self.pending[due[-1]]
+            self.controller.offer(plan)
+            self.used_seq = seq
+            del self.pending[: due[-1] + 1]
 
     def _trip(self, reason: str, now: float) -> None:
         """Damping from now on; say why once (the first cause; later ones are only listed in the summary's
@@ -147,7 +164,7 @@ class ControlLoop:
         for key, value in zip(LOG_FIELDS[:6], row, strict=True):
             log[key].append(value)
         log["damping"].append(command.damping)
-        log["plan_seq"].append(self.plan_seq)
+        log["plan_seq"].append(self.used_seq)
         log["lateness"].append(lateness)
 
     def _first_observation(self, timeout: float):
@@ -164,8 +181,9 @@ class ControlLoop:
             if time.monotonic() > deadline or not self.worker.is_alive():
                 raise RuntimeError(f"no first plan from the MPC worker within {timeout:g} s")
             time.sleep(0.001)
-        self.controller.offer(got[0])
+        self.controller.offer(got[0])  # made from the robot at rest at t = 0: it starts at once
         self.plan_seq, self.plan_meta = got[1].seq, got[1]
+        self.used_seq = self.plan_seq
         self.metrics.plan_received(self.plan_seq, self.plan_meta.observation_time)
 
     def _summary(self) -> dict:

@@ -39,6 +39,12 @@ class MPCRecipe:
         base_com_offset: Shift [m] of the MPC model's base CoM (the identified offset of the robot,
             :func:`wbmpc.model.base_com.shift_base_com`), or ``None``.
         torque_limit_fraction: Share of the torque limits the MPC plans with (the drives add damping).
+        max_iter: Iteration cap of a warm-started solve; ``None``: the solver's default
+            (:class:`~wbmpc.control.config.SolverSettings`). On the wall clock a solve past the cap is not
+            worth finishing: its plan would be too old (the next solve starts from a newer state).
+        cold_retry: Retry a failed warm solve from a cold start in the same tick
+            (:attr:`MPCConfig.cold_retry <wbmpc.control.config.MPCConfig.cold_retry>`); off by default on
+            the wall clock, where it makes a failed tick last a second.
     """
 
     gait: str = "stand:2,trot@0.2:6,stand:2"
@@ -46,6 +52,8 @@ class MPCRecipe:
     compiled: bool = True
     base_com_offset: tuple[float, float, float] | None = (-0.19, 0.0, 0.0)
     torque_limit_fraction: float = 0.9
+    max_iter: int | None = None
+    cold_retry: bool = True
 
     def robot(self):
         """The MPC's robot model."""
@@ -78,9 +86,11 @@ class MPCRecipe:
         from wbmpc.ocp import OCPSettings
 
         settings = OCPSettings(n_nodes=self.nodes, torque_limit_fraction=self.torque_limit_fraction)
-        mpc = WholeBodyMPC(
-            self.robot(), settings, MPCConfig(gait=self.schedule()), SolverSettings(compiled=self.compiled)
-        )
+        solver = SolverSettings(compiled=self.compiled)
+        if self.max_iter is not None:
+            solver = SolverSettings(compiled=self.compiled, max_iter=self.max_iter)
+        config = MPCConfig(gait=self.schedule(), cold_retry=self.cold_retry)
+        mpc = WholeBodyMPC(self.robot(), settings, config, solver)
         mpc.verbose = False
         mpc.prepare()
         return mpc
@@ -107,7 +117,17 @@ class WorkerStats:
 
 
 def run_worker(
-    recipe: MPCRecipe, loop_config, q0, observations, plans, ready, stop, stats_queue, stall=None, nice=0
+    recipe: MPCRecipe,
+    loop_config,
+    q0,
+    observations,
+    plans,
+    ready,
+    stop,
+    stats_path,
+    stall=None,
+    nice=0,
+    cpus=None,
 ):
     """The worker process's body (the target of a spawned ``multiprocessing.Process``).
 
@@ -119,11 +139,12 @@ def run_worker(
         observations: The :class:`~wbmpc.runtime.shared.ObservationChannel` to read.
         plans: The :class:`~wbmpc.runtime.shared.PlanChannel` to write.
         ready: Event set once the MPC is built; stop: event that ends the loop.
-        stats_queue: Queue the :class:`WorkerStats` is put on at the end.
+        stats_path: File the :class:`WorkerStats` is written to at the end (:mod:`~wbmpc.runtime.accounts`).
         stall: Optional ``(start_s, duration_s)``: the solver stalls once, for fault tests.
         nice: Niceness added to the worker (needs no privilege). 0 by default: on 2 cores with the emulated
             robot beside it, +5 made the solves slower (50 against 42 ms mean, one 8 s run each) without
             steadier ticks.
+        cpus: CPUs the worker may run on (``os.sched_setaffinity``), or ``None`` for any.
     """
     from wbmpc.runtime.shared import ObservationChannel, PlanChannel, SlotDescription
     from wbmpc.sim.planner import Planner
@@ -135,6 +156,8 @@ def run_worker(
     stats = WorkerStats()
     parent = os.getppid()
     try:
+        if cpus is not None:
+            os.sched_setaffinity(0, cpus)
         if nice:
             os.nice(nice)  # the controller's loop must get a core the moment it wakes
         mpc = recipe.build()
@@ -181,4 +204,6 @@ def run_worker(
     except Exception:  # reported to the parent, which falls back to damping when plans stop
         stats.errors.append(traceback.format_exc())
     finally:
-        stats_queue.put(stats)
+        from wbmpc.runtime.accounts import write_account
+
+        write_account(stats_path, stats)

@@ -70,7 +70,9 @@ class RobotStats:
     errors: list = field(default_factory=list)
 
 
-def run_emulated_robot(spec: EmulatedRobotSpec, port_factory, ready, stop, stats_queue, q0=None) -> None:
+def run_emulated_robot(
+    spec: EmulatedRobotSpec, port_factory, ready, stop, stats_path, q0=None, cpus=None
+) -> None:
     """The robot process's body.
 
     Args:
@@ -78,8 +80,9 @@ def run_emulated_robot(spec: EmulatedRobotSpec, port_factory, ready, stop, stats
         port_factory: ``port_factory() -> port`` (in the child: shared memory or DDS) with ``publish`` and
             ``latest_command``.
         ready: Event set when the robot publishes; stop: event that ends it.
-        stats_queue: Queue the :class:`RobotStats` is put on at the end.
+        stats_path: File the :class:`RobotStats` is written to at the end (:mod:`~wbmpc.runtime.accounts`).
         q0: Initial configuration (the robot's nominal pose by default).
+        cpus: CPUs the robot may run on (``os.sched_setaffinity``), or ``None`` for any.
     """
     from wbmpc.model.robot import load_b1_z1
     from wbmpc.runtime.clock import DeadlineLoop
@@ -92,6 +95,8 @@ def run_emulated_robot(spec: EmulatedRobotSpec, port_factory, ready, stop, stats
     parent = os.getppid()
     port = plant = None
     try:
+        if cpus is not None:
+            os.sched_setaffinity(0, cpus)
         robot = load_b1_z1()
         hardware = spec.profile()
         config = hardware_config(hardware)
@@ -140,4 +145,6 @@ def run_emulated_robot(spec: EmulatedRobotSpec, port_factory, ready, stop, stats
             port.close()
         if plant is not None:
             plant.close()
-        stats_queue.put(stats)
+        from wbmpc.runtime.accounts import write_account
+
+        write_account(stats_path, stats)

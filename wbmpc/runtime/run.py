@@ -21,17 +21,24 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
+import os
+import shutil
+import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from wbmpc.runtime.accounts import read_account
 from wbmpc.runtime.faults import Faults
-from wbmpc.runtime.mpc_worker import MPCRecipe, WorkerStats, run_worker
-from wbmpc.runtime.robot_process import EmulatedRobotSpec, RobotStats, run_emulated_robot
+from wbmpc.runtime.mpc_worker import MPCRecipe, run_worker
+from wbmpc.runtime.robot_process import EmulatedRobotSpec, run_emulated_robot
 
-__all__ = ["RuntimeConfig", "run_runtime"]
+__all__ = ["CPU_LAYOUTS", "RuntimeConfig", "cpu_sets", "run_runtime"]
+
+#: :attr:`RuntimeConfig.cpu_layout` values: who gets a CPU to itself ("split": the worker), or nobody.
+CPU_LAYOUTS = ("split", "controller", "robot", "any")
 
 
 @dataclass
@@ -48,11 +55,19 @@ class RuntimeConfig:
             solve starting when the last one returned; a multiple of the robot's 1 ms step).
         max_plan_age: Watchdog limit on the age of the plan in use [s]; max_overruns: overrun ticks in a row
             that trip it; max_observation_gap: seconds without a robot observation that trip it.
-        nodes, compiled: The MPC.
+        nodes, compiled: The MPC; max_iter: its warm solves' iteration cap (a failed solve is not
+            published; no cold retry on the wall clock).
         faults: Faults to inject (:class:`~wbmpc.runtime.faults.Faults`), for tests.
         gait_schedule: The gait schedule (e.g. ``"stand:1,trot@0.2:3"``; the run lasts it, ``duration`` is
             replaced); ``None``: stand 2 s, trot at ``speed``, stand 2 s over ``duration``.
         ready_timeout: Seconds to wait for the worker's MPC (a first compile takes minutes).
+        arm_motion: The arm's end effector moves up and down (the default
+            :class:`~wbmpc.control.arm_task.ArmReference`, 15 cm over 5 s) instead of being held still in
+            the heading frame (the default: a stand-trot-stand run tests the legs and the wire).
+        cpu_layout: Who gets a CPU to itself (``os.sched_setaffinity``, :func:`cpu_sets`): ``"split"``
+            the MPC worker (the controller and the robot share the others; a solve otherwise takes turns
+            with both fast loops), ``"controller"`` or ``"robot"``; ``"any"``: the kernel places every
+            process.
     """
 
     duration: float = 10.0
@@ -67,11 +82,17 @@ class RuntimeConfig:
     max_observation_gap: float = 0.02
     nodes: int = 15
     compiled: bool = True
+    max_iter: int = 15
     faults: Faults = field(default_factory=Faults)
     ready_timeout: float = 900.0
     gait_schedule: str | None = None
+    cpu_layout: str = "split"
+    arm_motion: bool = False
 
     def __post_init__(self):
+        if self.cpu_layout not in CPU_LAYOUTS:
+            layout = self.cpu_layout
+            raise ValueError(f"RuntimeConfig.cpu_layout must be one of {CPU_LAYOUTS}, got {layout!r}")
         if not isinstance(self.faults, Faults):
             raise ValueError(f"RuntimeConfig.faults must be a Faults, got {self.faults!r}")
         if self.robot not in ("emulated", "dds"):
@@ -100,13 +121,33 @@ class RuntimeConfig:
         return f"stand:2,trot@{self.speed:g}:{self.duration - 4:g},stand:2"
 
 
+def cpu_sets(layout: str, available: set[int] | None = None) -> dict[str, set[int] | None]:
+    """The CPUs of the ``"controller"``, the ``"worker"`` and the ``"robot"`` for a
+    :attr:`RuntimeConfig.cpu_layout` (``None``: not pinned).
+
+    With at least two CPUs available the named process gets the highest-numbered one to itself and the
+    other two share the rest (``"split"`` is the worker's layout); with one CPU, or ``"any"``, nothing is
+    pinned.
+    """
+    available = set(os.sched_getaffinity(0)) if available is None else set(available)
+    names = ("controller", "worker", "robot")
+    if layout == "any" or len(available) < 2:
+        return dict.fromkeys(names)
+    alone = "worker" if layout == "split" else layout
+    own, rest = {max(available)}, available - {max(available)}
+    return {name: own if name == alone else rest for name in names}
+
+
 def _loop_config(config: RuntimeConfig, hardware):
     from wbmpc.control.command_schedule import CommandSchedule
     from wbmpc.ocp.gait import parse_gait_schedule
     from wbmpc.sim.presets import hardware_config
 
     schedule = parse_gait_schedule(config.gait)
-    commands = CommandSchedule(ee_velocity_frame="heading", gait=schedule)
+    from wbmpc.control.arm_task import ArmReference
+
+    arm = ArmReference() if config.arm_motion else ArmReference.still()
+    commands = CommandSchedule(ee_velocity_frame="heading", gait=schedule, arm_reference=arm)
     loop = hardware_config(
         hardware, commands=commands, delay="measured", duration=config.duration, mpc_rate=config.mpc_rate
     )
@@ -132,19 +173,27 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
     robot = load_b1_z1()
     spec = EmulatedRobotSpec()
     loop_config = _loop_config(config, spec.profile())
-    recipe = MPCRecipe(gait=config.gait, nodes=config.nodes, compiled=config.compiled)
+    recipe = MPCRecipe(
+        gait=config.gait,
+        nodes=config.nodes,
+        compiled=config.compiled,
+        max_iter=config.max_iter,
+        cold_retry=False,
+    )
     ctx = mp.get_context("spawn")
     stop, worker_ready = ctx.Event(), ctx.Event()
-    worker_stats, robot_stats = ctx.Queue(), ctx.Queue()
+    accounts = Path(tempfile.mkdtemp(prefix="wbmpc-runtime-"))  # the children's accounts (accounts.py)
+    worker_stats, robot_stats = str(accounts / "worker.pickle"), str(accounts / "robot.pickle")
     plans = PlanChannel.create(recipe.plan_layout(robot))
     observations = ObservationChannel.create(robot.nq, robot.nv)
     wire, state_slot, command_slot = Wire.create(robot.nj)
     faults = config.faults
     stall = None if faults.stall_at is None else (faults.stall_at, faults.stall_for)
     worker_args = (recipe, loop_config, robot.q_nominal, observations.description, plans.description)
+    cpus = cpu_sets(config.cpu_layout)
     worker = ctx.Process(
         target=run_worker,
-        args=(*worker_args, worker_ready, stop, worker_stats, stall),
+        args=(*worker_args, worker_ready, stop, worker_stats, stall, 0, cpus["worker"]),
         name="wbmpc-mpc-worker",
         daemon=True,
     )
@@ -154,7 +203,7 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
         ready = ctx.Event()
         process = ctx.Process(
             target=run_emulated_robot,
-            args=(spec, _PortFactory(config, wire), ready, stop, robot_stats),
+            args=(spec, _PortFactory(config, wire), ready, stop, robot_stats, None, cpus["robot"]),
             name="wbmpc-emulated-robot",
             daemon=True,
         )
@@ -169,6 +218,7 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
 
     worker.start()
     robot_ready, robot_process = start_robot()
+    own_cpus = os.sched_getaffinity(0)
     client = None
     log: dict = {}
     summary: dict = {}
@@ -181,8 +231,11 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
         controller = RuntimeController(robot, loop_config, lambda times: contacts.contact(times, gait))
         loop = ControlLoop(config, robot, client, controller, plans, observations, worker, restart_robot)
         log = loop.log
+        if cpus["controller"] is not None:
+            os.sched_setaffinity(0, cpus["controller"])
         summary = loop.run()
     finally:
+        os.sched_setaffinity(0, own_cpus)
         stop.set()
         for process in (worker, *robots):
             process.join(10)
@@ -197,8 +250,9 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
             output = Path(output)
             output.mkdir(parents=True, exist_ok=True)
             np.savez_compressed(output / "runtime_log.npz", **{k: np.asarray(v) for k, v in log.items()})
-    summary["worker"] = _drain(worker_stats, WorkerStats)
-    summary["robot"] = _robot_summary(_drain(robot_stats, RobotStats), config)
+    summary["worker"] = read_account(worker_stats)
+    summary["robot"] = _robot_summary(read_account(robot_stats), config)
+    shutil.rmtree(accounts, ignore_errors=True)
     if output is not None:
         (Path(output) / "summary.json").write_text(json.dumps(summary, indent=1, default=_json))
     return summary
@@ -235,21 +289,15 @@ def _client(config: RuntimeConfig, wire, robot):
     return DdsRobot(robot, config.domain, config.interface)
 
 
-def _wait(event, process, queue, timeout: float, what: str) -> None:
+def _wait(event, process, account: str, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not event.wait(0.1):
         if not process.is_alive() or time.monotonic() > deadline:
-            stats = _drain(queue, dict)
-            errors = "\n".join(stats.get("errors", [])) if isinstance(stats, dict) else ""
+            if process.is_alive():
+                process.kill()
+            process.join(5)
+            errors = "\n".join(read_account(account).get("errors", []))
             raise RuntimeError(f"the {what} did not start within {timeout:g} s:\n{errors}")
-
-
-def _drain(queue, kind):
-    try:
-        stats = queue.get(timeout=5.0)
-    except Exception:
-        return {"errors": ["no account received (the process was killed?)"]}
-    return asdict(stats) if hasattr(stats, "__dataclass_fields__") else stats
 
 
 def _robot_summary(stats: dict, config: RuntimeConfig) -> dict:
