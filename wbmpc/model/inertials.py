@@ -287,6 +287,8 @@ def check_inertials(
         moments = np.linalg.eigvalsh(inertia.inertia)
         if inertia.mass > 0.0 and moments[0] > 1e-9 * max(moments[2], 1e-300):
             continue
+        if any(n in read_problems and not read_problems[n].pybullet_only for n in names):
+            continue  # a malformed inertial or a negative mass, already listed, is the cause
         what = "the floating base" if joint == 1 else f"the body moved by joint {model.names[joint]!r}"
         listed = [n for n in names if n in {p.link for p in problems}]
         if listed:
