@@ -17,6 +17,15 @@ paths+=(tests)
 
 # One pytest worker per core (pytest-xdist), each test file on one worker so that a file's module fixtures
 # (an MPC, a compiled solver) are built once. WBMPC_TEST_WORKERS=0 runs in this process.
+# Then the wall-clock runtime tests (marker "wallclock": robot, controller and MPC worker as processes) in
+# one process with the machine to themselves: a test beside them would take the MPC worker's CPU.
 workers="${WBMPC_TEST_WORKERS:-auto}"
-exec python -m pytest "${paths[@]}" --nbmake --nbmake-timeout=600 -p no:cacheprovider -q \
-    -n "$workers" --dist loadfile "$@"
+status=0
+python -m pytest "${paths[@]}" --nbmake --nbmake-timeout=600 -p no:cacheprovider -q \
+    -n "$workers" --dist loadfile -m "not wallclock" "$@" || status=$?
+wallclock=0
+python -m pytest tests -p no:cacheprovider -q -n 0 -m wallclock "$@" || wallclock=$?
+if [ "$wallclock" -ne 0 ] && [ "$wallclock" -ne 5 ]; then  # 5: no test selected (e.g. by -k)
+    status=$wallclock
+fi
+exit "$status"
