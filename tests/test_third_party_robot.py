@@ -271,6 +271,24 @@ def test_each_suggestion_loads(labdog, tmp_path):
             check_for_pybullet(urdf)
 
 
+def test_a_moving_body_without_mass_is_an_error_with_fixes_that_load(tmp_path):
+    """FL_calf without its inertial: the calf and its foot (no inertial either) are a massless moving body,
+    singular for Pinocchio too, so the loader raises; the estimates it suggests load."""
+    text = re.sub(r'(<link name="FL_calf">)<inertial>.*?</inertial>', r"\1", urdf_text())
+    urdf, srdf = write_robot(tmp_path / "broken", text)
+    problems = inertial_problems(urdf)
+    with pytest.raises(
+        RobotModelError, match=r"the body moved by joint 'FL_calf_joint' \(links FL_calf, FL_foot\)"
+    ):
+        _load(urdf, srdf, inertia_checks="ignore")
+    calf = next(p for p in problems if p.link == "FL_calf" and p.pybullet_only)
+    assert "a 0.1 kg, 5 cm cube" in calf.fixes[0].text  # no collision shape to estimate from
+    foot = next(p for p in problems if p.link == "FL_foot")
+    assert "a solid sphere of water's density" in foot.fixes[0].text  # from its 2 cm collision sphere
+    fixed, _ = write_robot(tmp_path / "fixed", apply_fixes(text, [p.fixes[0] for p in problems if p.fixes]))
+    assert inertial_problems(fixed) == []
+
+
 def test_the_root_link_is_not_advised_a_zero_mass(labdog, tmp_path):
     """The zero inertial the loader suggested for every link was then refused for the root link."""
     (root,) = [p for p in inertial_problems(labdog[0]) if p.link == "base_link"]
