@@ -316,6 +316,20 @@ def test_planning_and_the_rigid_plant_need_no_edit(labdog):
         assert len(_load(*labdog, inertia_checks="ignore").inertial_problems) == 8
 
 
+def test_the_pybullet_plant_refuses_what_the_loader_warned_about(labdog, fixed_labdog):
+    """The check lives where PyBullet consumes the URDF; once fixed, the plant loads it (the missing
+    collision mesh named, left out)."""
+    from wbmpc.sim.pybullet_plant import PyBulletPlant
+
+    robot = _load(*labdog, inertia_checks="ignore")
+    with pytest.raises(RobotModelError, match=r"8 problems[\s\S]*raise ixx by 0\.0015"):
+        PyBulletPlant(robot)
+    fixed = _load_cleanly(*fixed_labdog)
+    with pytest.warns(UserWarning, match="arm1_collision.stl"), PyBulletPlant(fixed) as plant:
+        state = plant.reset(fixed.q_nominal, np.zeros(fixed.nv))
+    np.testing.assert_allclose(state.q, fixed.q_nominal, atol=1e-9)
+
+
 # --- frames and names ------------------------------------------------------------------------------------
 def test_feet_and_end_effector_are_found(labdog, tmp_path):
     assert find_contact_frames(*labdog) == (FEET, EE)
