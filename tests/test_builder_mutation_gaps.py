@@ -587,8 +587,64 @@ def test_initial_state_value_is_the_measured_state(robot):
         values |= {"q_hat": q_hat, "v_hat": v_hat}
         x0 = np.asarray(ocp.initial_state_function(ocp.params.pack(values))).ravel()
         np.testing.assert_allclose(x0, expected, rtol=1e-10, atol=1e-12)
+        # called by its input and output names, as the plan function is
+        x0 = np.asarray(ocp.initial_state_function(p=ocp.params.pack(values))["x0"]).ravel()
+        np.testing.assert_allclose(x0, expected, rtol=1e-10, atol=1e-12)
         # of a stage without inputs too (the OCP calls it on node 0, which has them)
         p = ocp.params.symbols
         st = ocp.formulation.stage("t", p["q_hat"], has_input=False, torque_limited=False)
         x0 = ca.Function("x0", [ocp.params.vector], [ocp.initial_state_value(st, p)])(ocp.params.pack(values))
         np.testing.assert_allclose(np.asarray(x0).ravel(), expected, rtol=1e-10, atol=1e-12)
+
+
+def test_ocp_settings_accept_their_whole_range_and_refuse_the_rest_with_the_full_message():
+    """``OCPSettings.__post_init__``: every bound on both sides, numpy integers, floats and booleans where
+    they are meant, and each refusal's whole message (the bad-input catalogue matches only parts of them)."""
+    from wbmpc.ocp.formulations import FORMULATIONS
+
+    def refused(message, **kwargs):
+        with pytest.raises(ValueError) as err:
+            OCPSettings(**kwargs)
+        assert str(err.value) == message
+
+    # accepted: the ends of every range, numpy scalars
+    for kwargs in (
+        {"n_nodes": 3, "n_tau_nodes": 1},
+        {"n_nodes": 3, "n_tau_nodes": 2},
+        {"n_nodes": np.int64(4), "n_tau_nodes": np.int32(3)},
+        {"n_nodes": 100, "n_tau_nodes": 99},
+        {"torque_limit_fraction": 1},
+        {"torque_limit_fraction": 1.0},
+        {"torque_limit_fraction": 1e-9},
+        {"torque_limit_fraction": np.float32(0.5)},
+        {"ee_force_input": True, "initial_state_variables": True},
+        {"ee_force_input": np.bool_(True), "initial_state_variables": np.bool_(False)},
+        *({"formulation": name} for name in FORMULATIONS),
+    ):
+        settings = OCPSettings(**kwargs)
+        assert all(getattr(settings, key) == value for key, value in kwargs.items())
+
+    for n in (2, 0, -3):
+        refused(f"n_nodes must be an integer >= 3, got {n!r}", n_nodes=n)
+    for n in (15.0, "15", True, None):
+        refused(f"n_nodes must be an integer >= 3, got {n!r}", n_nodes=n)
+    refused(
+        "n_nodes = 101 is above 100: the problem grows linearly (N = 1000 took 419 s and 11.4 GB for its "
+        "first solve); the paper uses 15",
+        n_nodes=101,
+    )
+    for n_nodes, n_tau in ((3, 0), (3, 3), (5, 5), (5, 7), (5, -1), (5, 2.0), (5, True), (5, "2")):
+        refused(
+            f"n_tau_nodes must be in [1, n_nodes - 1 = {n_nodes - 1}], got {n_tau}",
+            n_nodes=n_nodes,
+            n_tau_nodes=n_tau,
+        )
+    refused(f"unknown formulation 'magic'; available: {list(FORMULATIONS)}", formulation="magic")
+    for fraction in (0, 0.0, -0.5, 1.0000001, 2, float("nan"), True, "0.5", None):
+        refused(
+            f"OCPSettings.torque_limit_fraction must be in (0, 1], got {fraction!r}",
+            torque_limit_fraction=fraction,
+        )
+    for name in ("ee_force_input", "initial_state_variables"):
+        for value in ("no", 0, 1, None):
+            refused(f"OCPSettings.{name} must be True or False, got {value!r}", **{name: value})
