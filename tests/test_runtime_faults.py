@@ -15,13 +15,14 @@ from wbmpc.runtime.run import RuntimeConfig, run_runtime
 #: themselves (scripts/test.sh), since a test process beside them takes the worker's CPU.
 pytestmark = pytest.mark.wallclock
 
-#: Stand, then trot: faults come at 1.5 s, in the first trot steps.
-GAIT = "stand:1,trot@0.2:1.5"
+#: The faults come at 1.5 s while the robot stands (its solves converge in 3 iterations; on 2 cores a trot's
+#: contact switches can still stop the plans for a while, issue 21 open, which says nothing of the fault).
+GAIT = "stand:1.8"
 FAULT_AT = 1.5
 PERIOD = 0.002
-#: Faults the controller must absorb are followed for 0.3 s: on 2 cores a longer trot may go to damping
-#: later for plan age (a run of failed solves, issue 21 open), which says nothing of the fault.
-SHORT_GAIT = "stand:1,trot@0.2:0.8"
+#: The worker is killed in the first trot steps.
+TROT = "stand:1,trot@0.2:1.5"
+KILL_AT = 1.25
 #: A SIGKILLed worker is seen dead only once the kernel has freed its memory (~400 MB mapped): 13 and 29 ms
 #: measured on this machine; the controller reacts at its next tick after that.
 KILL_TEARDOWN = 0.05
@@ -39,8 +40,16 @@ def limits():
 
 def _run(tmp_path, faults: Faults, gait: str = GAIT, **changes):
     # A generous plan-age limit: a slow solve must not trip it; the faults that must trip it do so by other
-    # causes (or by far more than this).
-    config = RuntimeConfig(gait_schedule=gait, faults=faults, max_plan_age=0.5, **changes)
+    # causes (or by far more than this). The controller gets a CPU to itself: what is tested is its
+    # reaction to the fault, in ticks. Overruns do not trip the watchdog here: on 2 cores about 1 % of the
+    # ticks overrun, a few in a row at times (issue 21 open), which says nothing of the fault; the
+    # overrun rule has its own tests (tests/test_runtime_watchdog.py, on a fake clock).
+    config = RuntimeConfig(
+        gait_schedule=gait,
+        faults=faults,
+        max_plan_age=0.5,
+        **({"cpu_layout": "controller", "max_overruns": 10**6} | changes),
+    )
     summary = run_runtime(config, tmp_path)
     log = dict(np.load(tmp_path / "runtime_log.npz"))
     return summary, log
@@ -65,16 +74,18 @@ def _damped_once(summary, reason_part):
 
 
 def test_worker_killed_mid_trot(tmp_path, limits):
-    summary, log = _run(tmp_path, Faults(kill_worker_at=FAULT_AT))
+    # The worker has a CPU to itself for the trot.
+    faults = Faults(kill_worker_at=KILL_AT)
+    summary, log = _run(tmp_path, faults, TROT, cpu_layout="split")
     _commands_are_safe(log, limits)
     _damped_once(summary, "worker died")
-    assert FAULT_AT <= summary["damping_from_s"] <= FAULT_AT + KILL_TEARDOWN + 2 * PERIOD
-    assert log["t"][-1] > FAULT_AT + 0.5  # the log goes on past the fault
+    assert KILL_AT <= summary["damping_from_s"] <= KILL_AT + KILL_TEARDOWN + 2 * PERIOD
+    assert log["t"][-1] > KILL_AT + 0.5  # the log goes on past the fault
     assert summary["worker"]["errors"]  # its account never came: said so, not hidden
 
 
 def test_stalled_solver_goes_to_damping_when_the_plan_is_too_old(tmp_path, limits):
-    summary, log = _run(tmp_path, Faults(stall_at=FAULT_AT, stall_for=0.6))
+    summary, log = _run(tmp_path, Faults(stall_at=FAULT_AT, stall_for=0.6), "stand:2.5")
     _commands_are_safe(log, limits)
     _damped_once(summary, "no new plan")
     assert FAULT_AT < summary["damping_from_s"] < FAULT_AT + 0.6
@@ -82,9 +93,19 @@ def test_stalled_solver_goes_to_damping_when_the_plan_is_too_old(tmp_path, limit
 
 def test_a_short_stall_is_ridden_out(tmp_path, limits):
     """A 0.1 s stall stays under the plan-age limit: the plan in use carries the robot through it."""
-    summary, log = _run(tmp_path, Faults(stall_at=FAULT_AT, stall_for=0.1), SHORT_GAIT)
+    summary, log = _run(tmp_path, Faults(stall_at=FAULT_AT, stall_for=0.1))
     _commands_are_safe(log, limits)
     assert not summary["damping"], summary["watchdog_events"]
+    # The run is also a ROS 2 bag: the estimate as joint states and odometry, read back as recorded.
+    from wbmpc.io.rosbag import read_bag
+
+    assert summary["bag"] == str(tmp_path / "bag")
+    # No raw IMU in the runtime's log; skipped ticks leave gaps of a few periods.
+    topics = {"imu": None, "required": (), "max_gap_factor": 1e3}
+    bag = read_bag(tmp_path / "bag", topics, robot=load_b1_z1())
+    assert bag.signals["t"] == pytest.approx(log["t"], abs=1e-6)
+    assert bag.signals["q_meas"][:, 7:] == pytest.approx(log["q_hat"][:, 7:], abs=1e-9)
+    assert bag.signals["q_meas"][:, :3] == pytest.approx(log["q_hat"][:, :3], abs=1e-9)
 
 
 @pytest.mark.parametrize(
@@ -97,7 +118,7 @@ def test_a_short_stall_is_ridden_out(tmp_path, limits):
     ids=["lost", "duplicated", "out of order"],
 )
 def test_lost_duplicated_and_reordered_observations_are_absorbed(tmp_path, limits, faults, count):
-    summary, log = _run(tmp_path, faults, SHORT_GAIT)
+    summary, log = _run(tmp_path, faults)
     _commands_are_safe(log, limits)
     assert summary["injected"][count] > 0
     assert not summary["damping"], summary["watchdog_events"]

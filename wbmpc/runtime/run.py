@@ -13,8 +13,10 @@ then runs the controller loop in this process on absolute 2 ms deadlines (:class
    said once;
 4. publish the estimate for the worker; record the tick (:class:`~wbmpc.runtime.metrics.RuntimeMetrics`).
 
-The run writes its log (``runtime_log.npz``: per tick the time, estimate, command, plan in use), and a
-summary JSON with the metrics, the worker's and the robot's accounts, and the robot's true forward speed.
+The run writes its log (``runtime_log.npz``: per tick the time, estimate, command, plan in use), the same
+as a ROS 2 bag (``bag/``: the estimate as joint states and odometry, the commanded feed-forward torques),
+and a summary JSON with the metrics, the worker's and the robot's accounts, and the robot's true forward
+speed.
 """
 
 from __future__ import annotations
@@ -250,12 +252,34 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
             output = Path(output)
             output.mkdir(parents=True, exist_ok=True)
             np.savez_compressed(output / "runtime_log.npz", **{k: np.asarray(v) for k, v in log.items()})
+            summary["bag"] = _write_bag(log, output / "bag", robot)
     summary["worker"] = read_account(worker_stats)
     summary["robot"] = _robot_summary(read_account(robot_stats), config)
     shutil.rmtree(accounts, ignore_errors=True)
     if output is not None:
         (Path(output) / "summary.json").write_text(json.dumps(summary, indent=1, default=_json))
     return summary
+
+
+def _write_bag(log: dict, path: Path, robot) -> str:
+    """The run as a ROS 2 bag (:func:`wbmpc.io.rosbag.write_bag`): the controller's estimate as the joint
+    states and odometry, the commanded feed-forward torques; returns the folder, or why none was written
+    (the summary and the npz log are kept either way)."""
+    from wbmpc.io.logs import RunLog
+    from wbmpc.io.rosbag import write_bag
+
+    try:
+        signals = {
+            "t": np.asarray(log["t"], dtype=float),
+            "q_meas": np.asarray(log["q_hat"], dtype=float),
+            "v_meas": np.asarray(log["v_hat"], dtype=float),
+            "tau_ff": np.asarray(log["tau_cmd"], dtype=float),
+        }
+        if path.exists():
+            shutil.rmtree(path)
+        return str(write_bag(RunLog(signals=signals, meta={"source": "wbmpc.runtime"}), path, robot))
+    except Exception as exc:  # a bag is a convenience: never lose the run's summary to it
+        return f"not written: {type(exc).__name__}: {exc}"
 
 
 class _PortFactory:
@@ -293,11 +317,13 @@ def _wait(event, process, account: str, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not event.wait(0.1):
         if not process.is_alive() or time.monotonic() > deadline:
-            if process.is_alive():
+            alive = process.is_alive()
+            if alive:
                 process.kill()
             process.join(5)
             errors = "\n".join(read_account(account).get("errors", []))
-            raise RuntimeError(f"the {what} did not start within {timeout:g} s:\n{errors}")
+            why = f"did not start within {timeout:g} s" if alive else f"exited (code {process.exitcode})"
+            raise RuntimeError(f"the {what} {why} before it was ready:\n{errors}")
 
 
 def _robot_summary(stats: dict, config: RuntimeConfig) -> dict:
