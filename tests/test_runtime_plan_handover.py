@@ -27,27 +27,27 @@ class _Controller:
 
 def _loop():
     loop = object.__new__(ControlLoop)  # only the hand-over's state: no processes, no robot
-    loop.controller, loop.pending, loop.used_seq = _Controller(), [], 0
+    loop.controller, loop.pending, loop.used_seq, loop.used_obs_t = _Controller(), [], 0, 0.0
     return loop
 
 
 def test_a_plan_waits_for_its_start_time_and_the_newest_due_plan_wins():
     loop = _loop()
     early, later, latest = (SimpleNamespace(t=t) for t in (1.00, 1.02, 1.05))
-    loop.pending = [(early, 7), (later, 8), (latest, 9)]
+    loop.pending = [(early, 7, 0.96), (later, 8, 0.98), (latest, 9, 1.01)]
     loop._start_due_plans(0.99)
     assert loop.controller.offered == [] and loop.used_seq == 0  # none has started: the old plan goes on
     loop._start_due_plans(1.00)
-    assert loop.controller.offered == [early] and loop.used_seq == 7
+    assert loop.controller.offered == [early] and loop.used_seq == 7 and loop.used_obs_t == 0.96
     loop._start_due_plans(1.06)  # both later ones are due: the newest is used, the other dropped
-    assert loop.controller.offered == [early, latest] and loop.used_seq == 9
+    assert loop.controller.offered == [early, latest] and loop.used_seq == 9 and loop.used_obs_t == 1.01
     assert loop.pending == []
 
 
 def test_a_plan_due_already_is_handed_over_at_once():
     loop = _loop()
     late = SimpleNamespace(t=0.5)  # arrived after its start (a slow solve): interpolated from its inside
-    loop.pending = [(late, 3)]
+    loop.pending = [(late, 3, 0.46)]
     loop._start_due_plans(0.52)
     assert loop.controller.offered == [late] and loop.used_seq == 3
 

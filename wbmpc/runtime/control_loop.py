@@ -35,7 +35,20 @@ from wbmpc.runtime.watchdog import Watchdog
 __all__ = ["ControlLoop"]
 
 #: Fields of the runtime log, one row per tick.
-LOG_FIELDS = ("t", "q_hat", "v_hat", "q_cmd", "dq_cmd", "tau_cmd", "damping", "plan_seq", "lateness")
+LOG_FIELDS = (
+    "t",
+    "q_hat",
+    "v_hat",
+    "q_cmd",
+    "dq_cmd",
+    "tau_cmd",
+    "damping",
+    "plan_seq",
+    "lateness",
+    "compute",
+    "plan_age",
+    "plan_obs_t",
+)
 
 
 class ControlLoop:
@@ -65,8 +78,8 @@ class ControlLoop:
         self.log = {key: [] for key in LOG_FIELDS}
         self.epoch = 1
         self.plan_seq, self.plan_meta = 0, None  # the newest plan received
-        self.used_seq = 0  # the plan in use
-        self.pending: list = []  # (plan, seq) received, not started yet, oldest first
+        self.used_seq, self.used_obs_t = 0, 0.0  # the plan in use and its measurement time
+        self.pending: list = []  # (plan, seq, measurement time) received, not started yet, oldest first
         self._said: set[str] = set()
         self.later_causes: list[tuple[float, str]] = []
 
@@ -130,7 +143,7 @@ class ControlLoop:
             if got is not None:
                 self.plan_seq, self.plan_meta = got[1].seq, got[1]
                 self.metrics.plan_received(self.plan_seq, self.plan_meta.observation_time)
-                self.pending.append((got[0], got[1].seq))
+                self.pending.append((got[0], got[1].seq, got[1].observation_time))
             self._start_due_plans(now)
             if not self.worker.is_alive():
                 self._trip("the MPC worker died", now)
@@ -143,6 +156,7 @@ class ControlLoop:
                 self.metrics.plan_used(self.used_seq, now)
                 self.observations.publish(now, controller.q_hat, controller.v_hat, epoch=self.epoch)
             compute = loop.tick_done()
+            age = None if command.damping else now - self.used_obs_t  # of the plan in use
             period = None if last_wake is None else (tick.wake_ns - last_wake) / 1e9
             last_wake = tick.wake_ns
             self.metrics.tick(
@@ -150,20 +164,19 @@ class ControlLoop:
                 overrun=tick.overrun,
                 compute_s=compute,
                 period_s=period,
-                plan_age_s=None if command.damping else state.plan_age_s,
+                plan_age_s=age,
                 skipped=tick.skipped,
             )
-            self._record(now, command, tick.lateness_s)
+            self._record(now, command, tick.lateness_s, compute, age)
         return self._summary()
 
     def _start_due_plans(self, now: float) -> None:
         """Hand the newest pending plan whose start time has come to the controller (older pending plans
         are superseded by it and dropped)."""
-        due = [i for i, (plan, _) in enumerate(self.pending) if plan.t <= now + 1e-9]
+        due = [i for i, (plan, *_) in enumerate(self.pending) if plan.t <= now + 1e-9]
         if due:
-            plan, seq = self.pending[due[-1]]
+            plan, self.used_seq, self.used_obs_t = self.pending[due[-1]]
             self.controller.offer(plan)
-            self.used_seq = seq
             del self.pending[: due[-1] + 1]
 
     def _trip(self, reason: str, now: float) -> None:
@@ -178,7 +191,7 @@ class ControlLoop:
             self.later_causes.append((now, reason))
         self._said.add(reason)
 
-    def _record(self, now: float, command, lateness: float) -> None:
+    def _record(self, now: float, command, lateness: float, compute: float, plan_age: float | None) -> None:
         log, controller = self.log, self.controller
         row = (now, controller.q_hat, controller.v_hat, command.q, command.dq, command.tau)
         for key, value in zip(LOG_FIELDS[:6], row, strict=True):
@@ -186,6 +199,9 @@ class ControlLoop:
         log["damping"].append(command.damping)
         log["plan_seq"].append(self.used_seq)
         log["lateness"].append(lateness)
+        log["compute"].append(compute)
+        log["plan_age"].append(np.nan if plan_age is None else plan_age)
+        log["plan_obs_t"].append(self.used_obs_t)
 
     def _first_observation(self, timeout: float):
         deadline = time.monotonic() + timeout
