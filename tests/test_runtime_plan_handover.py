@@ -102,3 +102,27 @@ def test_cpu_layouts_give_one_process_a_cpu_to_itself():
 def test_a_bad_cpu_layout_is_refused_before_anything_starts():
     with pytest.raises(ValueError, match=r"cpu_layout must be one of .*'fast'"):
         RuntimeConfig(cpu_layout="fast")
+
+
+def test_plan_latencies_are_the_first_use_minus_the_measurement_time():
+    import numpy as np
+
+    from wbmpc.runtime.report import plan_latencies
+
+    log = {
+        "t": np.array([0.0, 0.002, 0.004, 0.006, 0.008, 0.010]),
+        "plan_seq": np.array([1, 1, 2, 2, 3, 3]),
+        "plan_obs_t": np.array([0.0, 0.0, -0.030, -0.030, -0.025, -0.025]),
+        "damping": np.array([False, False, False, False, True, True]),
+    }
+    uses, latency = plan_latencies(log)
+    # plan 2 first used at 4 ms, made from the measurement at -30 ms; plan 3 only in damping: not used
+    assert uses == pytest.approx([0.004]) and latency == pytest.approx([0.034])
+
+
+def test_a_run_folder_without_its_files_is_named_with_the_command_that_writes_them(tmp_path):
+    from wbmpc.runtime.report import load_run
+
+    message = r"no summary.json and no runtime_log.npz.*python -m wbmpc.runtime"
+    with pytest.raises(FileNotFoundError, match=message):
+        load_run(tmp_path)
