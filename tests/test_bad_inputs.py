@@ -13,6 +13,7 @@ from wbmpc.control.low_level import LowLevelController
 from wbmpc.control.mpc import Commands, MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.estimation import EstimatorNoise, StateEstimator
 from wbmpc.estimation.filters import LowPassFilter
+from wbmpc.io.logs import LogWriter, RunLog, load_log, save_log
 from wbmpc.io.rosbag import TopicMap
 from wbmpc.model.robot import RobotModelError, example_robot_data_dir, load, load_b1_z1, load_robot
 from wbmpc.model.statics import static_equilibrium
@@ -25,7 +26,7 @@ from wbmpc.sim.loop_config import CommandSchedule, LowLevelConfig, PlantConfig, 
 from wbmpc.sim.pybullet_plant import Box, Payload, Wall
 from wbmpc.sim.sensing import SensorNoise
 from wbmpc.solver.deploy import export
-from wbmpc.solver.nlpsol import solver_options
+from wbmpc.solver.nlpsol import make_nlpsol, solver_options
 
 MPC_CONFIGS = [
     ({"dt_min": 0.0}, "dt_min must be a positive number"),
@@ -1249,7 +1250,284 @@ CATALOGUE = [
         C,
         "v_hat must have shape (22,), got (3,)",
     ),
+    # --- run logs (issue 23): the path, the field, the file and the fix --------------------------------
+    (
+        "unclear",
+        "load_log a directory",
+        lambda: load_log(_tmp()),
+        IsADirectoryError,
+        "is a directory, not a log file",
+    ),
+    (
+        "unclear",
+        "load_log a directory of logs",
+        lambda: load_log(_log_file("run.npz").parent),
+        IsADirectoryError,
+        "give the path of a .npz log (logs in it: run.npz)",
+    ),
+    (
+        "unclear",
+        "log format_version a string",
+        lambda: load_log(_log_file("format_version.npz", meta={"format_version": "1"})),
+        C,
+        "format_version.npz: meta field 'format_version' must be an integer >= 0 (this wbmpc writes 1), "
+        "got '1' (str); fix that field",
+    ),
+    (
+        "silent",
+        "log partial a string",
+        lambda: load_log(_log_file("partial.npz", meta={"partial": "no"})),
+        C,
+        "partial.npz: meta field 'partial' must be true or false, got 'no'",
+    ),
+    (
+        "unclear",
+        "log t_reached a string",
+        lambda: load_log(_log_file("t_reached.npz", meta={"t_reached": "2.5 s"})),
+        C,
+        "meta field 't_reached' must be a number of seconds or null, got '2.5 s'",
+    ),
+    (
+        "silent",
+        "log summary a list",
+        lambda: load_log(_log_file("summary.npz", meta={"summary": [1, 2]})),
+        C,
+        "meta field 'summary' must be an object or null",
+    ),
+    (
+        "silent",
+        "log joint names a string",
+        lambda: save_log(RunLog(signals={"t": np.arange(3.0)}, meta={"joint_names": "FL_hip"}), _tmp() / "a"),
+        C,
+        "the log's meta: meta field 'joint_names' must be a list of joint names, got 'FL_hip' (str)",
+    ),
+    (
+        "unclear",
+        "log time column of strings",
+        lambda: load_log(_log_file("strings.npz", columns={"signals/t": np.array(["0", "1"])})),
+        C,
+        "strings.npz: time column 't' must hold numbers (seconds), got dtype <U1",
+    ),
+    (
+        "unclear",
+        "log column a scalar",
+        lambda: save_log(RunLog(signals={"t": np.arange(3.0), "x": np.float64(1.0)}), _tmp() / "a"),
+        C,
+        "column 'x' is a scalar (np.float64(1.0)): every column needs one row per sample",
+    ),
+    (
+        "unclear",
+        "save_log under a file",
+        lambda: save_log(RunLog(signals={"t": np.arange(3.0)}), _file("results") / "run.npz"),
+        NotADirectoryError,
+        "results is a file, not a folder; choose an output path outside it, or move or remove",
+    ),
+    (
+        "unclear",
+        "save_log two folders under a file",
+        lambda: save_log(RunLog(signals={"t": np.arange(3.0)}), _file("out") / "a" / "run.npz"),
+        NotADirectoryError,
+        "out is a file, not a folder",
+    ),
+    (
+        "unclear",
+        "streamed log under a file",
+        lambda: LogWriter(_file("streamed") / "run.npz"),
+        NotADirectoryError,
+        "streamed is a file, not a folder; choose an output path outside it",
+    ),
+    (
+        "unclear",
+        "save_log onto a folder",
+        lambda: save_log(RunLog(signals={"t": np.arange(3.0)}), _tmp("run.npz")),
+        IsADirectoryError,
+        "run.npz: it is a folder; give a file name",
+    ),
+    (
+        "unclear",
+        "log a text file",
+        lambda: load_log(_file("notes.npz", b"hello, not a log")),
+        C,
+        "notes.npz is not a .npz log: it does not start like a zip archive (first bytes b'hello, n')",
+    ),
+    (
+        "unclear",
+        "log a pickle",
+        lambda: load_log(_file("pickled.npz", __import__("pickle").dumps({"t": [0.0]}))),
+        C,
+        "wbmpc never loads pickled data: re-write the log with wbmpc.io.logs.save_log",
+    ),
+    (
+        "unclear",
+        "log column of objects",
+        lambda: load_log(_log_file("objects.npz", columns={"signals/t": np.array([0.0, "a"], dtype=object)})),
+        C,
+        "objects.npz: entry 'signals/t' holds Python objects (pickled data), which wbmpc logs never contain",
+    ),
+    (
+        "unclear",
+        "log an empty file",
+        lambda: load_log(_file("empty.npz", b"")),
+        C,
+        "empty.npz is empty (0 bytes)",
+    ),
+    (
+        "unclear",
+        "log a single .npy",
+        lambda: load_log(_npy_file()),
+        C,
+        "single.npy is a single .npy array, not a .npz log",
+    ),
+    # --- compiled solver library (issue 23) ------------------------------------------------------------
+    (
+        "unclear",
+        "compiled library of another horizon",
+        lambda: _nlpsol_from(_foreign_library()),
+        C,
+        "was built for N = 15 nodes, not for N = 4 nodes: it has 10 variables (this OCP: 282)",
+    ),
+    (
+        "unclear",
+        "compiled library of another horizon: the fix",
+        lambda: _nlpsol_from(_foreign_library()),
+        C,
+        "Rebuild it for this OCP (wbmpc.solver.codegen.build(ocp, force=True); SolverSettings(compiled=True) "
+        "builds its own), or clear the cache (delete",
+    ),
+    (
+        "unclear",
+        "compiled library missing",
+        lambda: _nlpsol_from(_tmp() / "libwbmpc_nlp.so"),
+        FileNotFoundError,
+        "no compiled NLP library at",
+    ),
+    (
+        "unclear",
+        "compiled library not a library",
+        lambda: _nlpsol_from(_file("libwbmpc_nlp.so", b"not an ELF file")),
+        C,
+        "libwbmpc_nlp.so does not load",
+    ),
+    # --- commands beyond physical limits (issue 23): refused where they are built ------------------------
+    (
+        "unclear",
+        "command speed 1e6 m/s",
+        lambda: CommandSchedule(base_velocity=(1e6, 0.0, 0.0)),
+        C,
+        "CommandSchedule.base_velocity: base speed 1e+06 m/s is beyond the physical limit of 10 m/s",
+    ),
+    (
+        "unclear",
+        "command lateral speed 50 m/s",
+        lambda: CommandSchedule(base_velocity=(0.0, 50.0, 0.0)),
+        C,
+        "base speed 50 m/s is beyond the physical limit of 10 m/s",
+    ),
+    (
+        "unclear",
+        "command yaw rate in deg/s",
+        lambda: CommandSchedule(base_yaw_rate=90.0),
+        C,
+        "CommandSchedule.base_yaw_rate: yaw rate 90 rad/s is beyond the physical limit of 10 rad/s",
+    ),
+    (
+        "unclear",
+        "command hand speed 50 m/s",
+        lambda: CommandSchedule(ee_velocity=(0.0, 0.0, 50.0)),
+        C,
+        "CommandSchedule.ee_velocity: end-effector speed 50 m/s is beyond the physical limit of 10 m/s",
+    ),
+    (
+        "unclear",
+        "gait schedule segment at 1e6 m/s",
+        lambda: MPCConfig(gait=parse_gait_schedule("stand:1,trot@1e6:2")),
+        C,
+        "MPCConfig.gait segment 1 (trot@1e+06): base speed 1e+06 m/s is beyond the physical limit of 10 m/s",
+    ),
+    (
+        "unclear",
+        "command schedule gait segment at 30 m/s",
+        lambda: CommandSchedule(gait=parse_gait_schedule("trot@30:2")),
+        C,
+        "CommandSchedule.gait segment 0 (trot@30): base speed 30 m/s",
+    ),
+    (
+        "unclear",
+        "command override at 100 m/s",
+        lambda: CommandSchedule(overrides=lambda t: {"base_velocity": (100.0, 0, 0)}).at(0.5),
+        C,
+        "CommandSchedule.overrides at t = 0.500 s: base speed 100 m/s is beyond the physical limit",
+    ),
+    (
+        "named",
+        "measured velocity NaN",
+        lambda: _mpc_solve(v_hat=np.full(22, NAN)),
+        C,
+        "v_hat must be finite (v_hat contains NaN or inf",
+    ),
 ]
+
+
+def _tmp(name: str | None = None) -> Path:
+    """A new empty folder (or, with ``name``, a new empty folder of that name inside one)."""
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix="wbmpc_bad_log_"))
+    if name is not None:
+        (folder / name).mkdir()
+        return folder / name
+    return folder
+
+
+def _file(name: str, data: bytes = b"x") -> Path:
+    path = _tmp() / name
+    path.write_bytes(data)
+    return path
+
+
+def _log_file(name: str, meta: dict | None = None, columns: dict | None = None) -> Path:
+    """A log archive written by hand (as another tool would), with the given meta and columns."""
+    import json
+
+    path = _tmp() / name
+    columns = {"signals/t": np.arange(3.0)} if columns is None else columns
+    np.savez(path, **columns, meta=np.array(json.dumps(meta or {})))
+    return path
+
+
+def _npy_file() -> Path:
+    path = _tmp() / "single.npy"
+    np.save(path, np.zeros(3))
+    return path
+
+
+@functools.cache
+def _foreign_library() -> Path:
+    """A compiled ``nlp`` of 10 variables with the build record of a 15-node cache entry."""
+    import json
+    import subprocess
+
+    import casadi as ca
+
+    folder = _tmp("0123456789abcdef")
+    x, p = ca.SX.sym("x", 10), ca.SX.sym("p", 3)
+    nlp = ca.Function("nlp", [x, p], [ca.sumsqr(x), x[:5]], ["x", "p"], ["f", "g"])
+    generator = ca.CodeGenerator("foreign.c")
+    generator.add(nlp)
+    generator.generate(str(folder) + "/")
+    library = folder / "libwbmpc_nlp.so"
+    subprocess.run(
+        ["gcc", "-shared", "-fPIC", "-O0", str(folder / "foreign.c"), "-o", str(library)], check=True
+    )
+    (folder / "build.json").write_text(json.dumps({"ocp_settings": {"n_nodes": 15}}))
+    return library
+
+
+def _nlpsol_from(library: Path):
+    mpc = _module_mpc()
+    return make_nlpsol(
+        "x", "fatrop", mpc.ocp.nlp, mpc.solver_options(False), library, n_nodes=mpc.ocp.n_nodes
+    )
 
 
 def _rigid_plant():

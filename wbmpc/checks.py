@@ -137,3 +137,44 @@ def _range_text(low, high, low_open, high_open, unit) -> str:
     if high is not None:
         return f"finite number {'<' if high_open else '<='} {high:g}{unit}"
     return f"finite number{unit}"
+
+
+#: Physical bounds of commands: far beyond any legged robot (the fastest run at about 4-6 m/s and turn at
+#: about 5 rad/s); a command above them is a typo or a unit error, refused before any work.
+MAX_BASE_SPEED = 10.0  # [m/s]
+MAX_YAW_RATE = 10.0  # [rad/s]
+MAX_EE_SPEED = 10.0  # [m/s]
+
+
+def command_velocity(name: str, linear=None, yaw_rate=None, ee_velocity=None) -> None:
+    """Refuse a base or end-effector velocity command beyond :data:`MAX_BASE_SPEED`, :data:`MAX_YAW_RATE`,
+    :data:`MAX_EE_SPEED` with a ``ValueError`` that names ``name``, the value and the limit."""
+    if linear is not None:
+        speed = float(np.linalg.norm(np.asarray(linear, dtype=float)))
+        if not speed <= MAX_BASE_SPEED:
+            raise ValueError(
+                f"{name}: base speed {speed:.4g} m/s is beyond the physical limit of {MAX_BASE_SPEED:g} m/s "
+                "(no legged robot walks or runs faster; the fastest reach about 4-6 m/s): give a speed "
+                f"in m/s under {MAX_BASE_SPEED:g}"
+            )
+    if yaw_rate is not None and not abs(float(yaw_rate)) <= MAX_YAW_RATE:
+        raise ValueError(
+            f"{name}: yaw rate {float(yaw_rate):.4g} rad/s is beyond the physical limit of {MAX_YAW_RATE:g} "
+            "rad/s: give a yaw rate in rad/s (not deg/s) under that"
+        )
+    if ee_velocity is not None:
+        speed = float(np.max(np.linalg.norm(np.asarray(ee_velocity, dtype=float).reshape(3, -1), axis=0)))
+        if not speed <= MAX_EE_SPEED:
+            raise ValueError(
+                f"{name}: end-effector speed {speed:.4g} m/s is beyond the physical limit of "
+                f"{MAX_EE_SPEED:g} m/s: give a speed in m/s under that"
+            )
+
+
+def gait_velocities(name: str, gait) -> None:
+    """Refuse a gait schedule whose segment velocities (``trot@1e6:4``) exceed the limits of
+    :func:`command_velocity`; the message names the segment."""
+    for j, velocity in enumerate(getattr(gait, "velocities", ()) or ()):
+        if velocity is not None:
+            where = f"{name} segment {j} ({gait.gaits[j].name}@{velocity[0]:g})"
+            command_velocity(where, linear=(velocity[0], velocity[1], 0.0), yaw_rate=velocity[2])

@@ -75,6 +75,9 @@ class CommandSchedule:
         for key in ("base_velocity", "ee_velocity", "ee_force"):
             checks.vector(name + key, getattr(self, key), 3)
         checks.number(name + "base_yaw_rate", self.base_yaw_rate, unit="rad/s")
+        checks.command_velocity(name + "base_velocity", linear=self.base_velocity)
+        checks.command_velocity(name + "base_yaw_rate", yaw_rate=self.base_yaw_rate)
+        checks.command_velocity(name + "ee_velocity", ee_velocity=self.ee_velocity)
         if self.ee_velocity_frame not in ("heading", "world"):
             raise ValueError(
                 f"{name}ee_velocity_frame must be 'heading' or 'world', got {self.ee_velocity_frame!r}"
@@ -85,6 +88,8 @@ class CommandSchedule:
             )
         if self.gait is not None and not isinstance(self.gait, Gait | GaitSchedule):
             raise ValueError(f"{name}gait must be a Gait or GaitSchedule (wbmpc.ocp.gait), got {self.gait!r}")
+        if self.gait is not None:
+            checks.gait_velocities(name + "gait", self.gait)
         if self.overrides is not None and not callable(self.overrides):
             raise ValueError(f"{name}overrides must be a function f(t) -> dict, got {self.overrides!r}")
         if self.ramp is not None:
@@ -125,4 +130,7 @@ class CommandSchedule:
             cmd |= override
         out = {k: np.asarray(v, dtype=float) for k, v in cmd.items()}
         out["base_yaw_rate"] = float(out["base_yaw_rate"])
+        if self.overrides is not None:  # the first tick that cannot be planned stops the run, named
+            where = f"CommandSchedule.overrides at t = {t:.3f} s"
+            checks.command_velocity(where, out["base_velocity"], out["base_yaw_rate"], out["ee_velocity"])
         return out

@@ -197,6 +197,7 @@ class MPCConfig:
             )
         if not isinstance(self.swing, SwingParams):
             raise ValueError(f"MPCConfig.swing must be a SwingParams (wbmpc.ocp.gait), got {self.swing!r}")
+        checks.gait_velocities("MPCConfig.gait", self.gait)
 
 
 @dataclass(frozen=True)

@@ -161,7 +161,8 @@ class WholeBodyMPC:
             if self.compiled_nlp is None:
                 self.compiled_nlp = codegen.build(self.ocp, tuple(cfg.compile_flags), progress=self.verbose)
             library = self.compiled_nlp.library
-        return make_nlpsol(name, cfg.solver, self.ocp.nlp, self.solver_options(cold, max_iter), library)
+        options = self.solver_options(cold, max_iter)
+        return make_nlpsol(name, cfg.solver, self.ocp.nlp, options, library, n_nodes=self.ocp.n_nodes)
 
     # --- parameters -----------------------------------------------------------------------------------------
     def time_steps(self) -> np.ndarray:
@@ -377,12 +378,14 @@ class WholeBodyMPC:
             raise ValueError(
                 f"q_hat[3:7] is the base quaternion (x, y, z, w) and must not be zero, got {q_hat[3:7]}"
             )
+        # A state no robot can be in (a sensor fault) is not solved: a failed solve that names it.
+        absurd = tuple(self.prechecks.absurd_measurement(q_hat, v_hat))
         q_hat[3:7] /= norm
         commands = (commands or Commands()).validated()
         # Cheap physical checks (~0.1 ms): explain a failure before it happens; refuse ill-posed commands.
         gait = self.gait(commands)
         gait = gait.gait_at(t) if isinstance(gait, GaitSchedule) else gait  # the gait in force now
-        findings = tuple(self.prechecks.run(q_hat, v_hat, commands, gait))
+        findings = absurd + tuple(self.prechecks.run(q_hat, v_hat, commands, gait))
         for finding in findings:
             if finding.code in REFUSED_FINDINGS:
                 raise ValueError(f"command refused: {finding.message}")
@@ -399,8 +402,14 @@ class WholeBodyMPC:
             args["lam_g0"] = self.previous.lam_g
         self.last_inputs = args  # what the solver was called with (for replays, exports, debugging)
         self.stats["solves"] += 1
-        w, lam_g, report = self._run_solver(self._solver(cold), args)
-        if not report["success"] and not cold and self.config.cold_retry:
+        if absurd:
+            reason = "; ".join(f.message for f in absurd) + " (solve skipped, the controller falls back)"
+            w, lam_g = None, None
+            report = {"success": False, "status": "absurd_measurement", "reason": reason, "iterations": -1}
+            report |= {"solve_time": 0.0, "constraint_violation": np.inf, "timings": {}}
+        else:
+            w, lam_g, report = self._run_solver(self._solver(cold), args)
+        if not report["success"] and not cold and self.config.cold_retry and not absurd:
             # A warm start far from the new state (e.g. after a push) can stall; a cold start from the
             # measured state often converges. Its time adds to this solve's.
             self.stats["cold_retries"] += 1

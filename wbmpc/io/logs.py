@@ -109,12 +109,24 @@ class RunLog:
                 continue
             if time_key not in table:
                 raise ValueError(f"log table without its time column {time_key!r}")
+            for name, column in table.items():
+                if np.ndim(column) == 0:
+                    raise ValueError(
+                        f"column {name!r} is a scalar ({column!r}): every column needs one row per sample "
+                        "(put single values in meta)"
+                    )
             n = len(table[time_key])
             for name, column in table.items():
                 if len(column) != n:
                     raise ValueError(f"column {name!r} has {len(column)} rows, {time_key!r} has {n}")
-            if not np.all(np.isfinite(table[time_key])):
+            times = np.asarray(table[time_key])
+            if times.dtype.kind not in "iuf":
+                raise ValueError(
+                    f"time column {time_key!r} must hold numbers (seconds), got dtype {times.dtype}"
+                )
+            if not np.all(np.isfinite(times)):
                 raise ValueError(f"time column {time_key!r} contains NaN or inf")
+        check_meta(self.meta, "the log's meta")
 
 
 def _npz_path(path: str | Path) -> Path:
@@ -141,9 +153,71 @@ def save_log(log: RunLog, path: str | Path) -> Path:
     """Write ``log`` to ``path`` (``.npz`` appended if missing); returns the path."""
     log.validate()
     path = _npz_path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_parent(path, "log")
+    if path.is_dir():
+        raise IsADirectoryError(
+            f"cannot write the log {path}: it is a folder; give a file name (e.g. {path / 'log.npz'})"
+        )
     np.savez_compressed(path, **_flat(log), meta=_meta_array(log.meta))
     return path
+
+
+def _make_parent(path: Path, what: str) -> None:
+    """``mkdir -p`` of ``path``'s folder; if a file is in the way, say which one and what to do."""
+    for ancestor in (path.parent, *path.parent.parents):
+        if ancestor.exists():
+            if not ancestor.is_dir():
+                raise NotADirectoryError(
+                    f"cannot write the {what} {path}: {ancestor} is a file, not a folder; "
+                    f"choose an output path outside it, or move or remove {ancestor}"
+                )
+            break
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+
+# meta fields wbmpc reads back: name -> (accepts the value, what it must be)
+_META_FIELDS = {
+    "format_version": (
+        lambda v: _is_int(v) and v >= 0,
+        f"an integer >= 0 (this wbmpc writes {FORMAT_VERSION})",
+    ),
+    "partial": (lambda v: isinstance(v, bool), "true or false"),
+    "t_reached": (lambda v: v is None or _is_number(v), "a number of seconds or null"),
+    "chunks": (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
+    "interrupted": (lambda v: v is None or isinstance(v, str), "a string or null"),
+    "summary": (lambda v: v is None or isinstance(v, dict), "an object or null"),
+    "requested_duration_s": (lambda v: v is None or _is_number(v), "a number of seconds or null"),
+    "joint_names": (
+        lambda v: v is None or (isinstance(v, list | tuple) and all(isinstance(n, str) for n in v)),
+        "a list of joint names",
+    ),
+}
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def check_meta(meta, where: str) -> None:
+    """Check the type of each meta field wbmpc reads back (:data:`_META_FIELDS`).
+
+    Raises:
+        ValueError: naming the field, ``where`` it is and what it must be.
+    """
+    if not isinstance(meta, dict):
+        raise ValueError(f"{where}: meta must be a dict, got {type(meta).__name__}")
+    for name, (accepts, expected) in _META_FIELDS.items():
+        if name in meta and not accepts(meta[name]):
+            value = meta[name]
+            raise ValueError(
+                f"{where}: meta field {name!r} must be {expected}, got {value!r} ({type(value).__name__}); "
+                f"fix that field (e.g. rewrite the log with wbmpc.io.logs.save_log from a RunLog whose "
+                f"meta[{name!r}] has the right type)"
+            )
 
 
 def load_log(path: str | Path) -> RunLog:
@@ -159,35 +233,100 @@ def load_log(path: str | Path) -> RunLog:
     """
     path = Path(path)
     if path.is_dir():
-        return _load_parts(path)
+        if _is_parts_folder(path):
+            return _load_parts(path)
+        logs = sorted(p.name for p in path.glob("*.npz"))[:5]
+        inside = f"logs in it: {', '.join(logs)}" if logs else "it holds no .npz log"
+        raise IsADirectoryError(
+            f"{path} is a directory, not a log file: give the path of a .npz log ({inside}) "
+            "or of a streamed log's .parts folder"
+        )
     if not path.exists():
         if parts_folder(path).is_dir():
             return _load_parts(parts_folder(path))
         raise FileNotFoundError(f"no log file at {path} (nor a streamed-log folder {parts_folder(path)})")
+    _check_archive_head(path)
     try:
         with np.load(path, allow_pickle=False) as archive:
             if "meta" not in archive.files:
                 raise ValueError(f"{path} is not a wbmpc log (no 'meta' entry)")
-            meta = _parse_meta(str(archive["meta"]), f"{path} (entry 'meta')")
+            meta = _parse_meta(str(_read_entry(archive, "meta", path)), f"{path} (entry 'meta')")
             log = RunLog(meta=meta)
             for key in archive.files:
                 table, _, name = key.partition("/")
                 if table == "signals":
-                    log.signals[name] = archive[key]
+                    log.signals[name] = _read_entry(archive, key, path)
                 elif table == "solves":
-                    log.solves[name] = archive[key]
+                    log.solves[name] = _read_entry(archive, key, path)
     except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
-        raise ValueError(f"{path} is truncated or corrupt (not a complete .npz log): {exc}") from exc
+        raise ValueError(f"{path} is truncated or corrupt (not a complete .npz log): {_reason(exc)}") from exc
     except ValueError as exc:
         if str(path) in str(exc):
             raise
-        raise ValueError(f"{path} is truncated or corrupt (not a complete .npz log): {exc}") from exc
+        raise ValueError(f"{path} is truncated or corrupt (not a complete .npz log): {_reason(exc)}") from exc
+    check_meta(log.meta, str(path))
     if log.meta.get("format_version", 0) > FORMAT_VERSION:
         raise ValueError(
             f"{path} has format version {log.meta['format_version']}; this wbmpc reads up to {FORMAT_VERSION}"
+            " (update wbmpc to read it)"
         )
-    log.validate()
+    try:
+        log.validate()
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
     return log
+
+
+def _is_parts_folder(path: Path) -> bool:
+    """A streamed log's chunk folder: named ``*.parts`` or holding ``meta.json`` / ``chunk_*.npz``."""
+    return path.suffix == ".parts" or (path / "meta.json").is_file() or bool(_chunk_files(path))
+
+
+_ZIP_MAGIC, _NPY_MAGIC = b"PK", b"\x93NUMPY"
+
+
+def _check_archive_head(path: Path) -> None:
+    """Refuse, by its first bytes, a file that is not a ``.npz`` archive (never read as a pickle)."""
+    with open(path, "rb") as f:
+        head = f.read(8)
+    if not head:
+        raise ValueError(
+            f"{path} is empty (0 bytes): the process writing it was probably killed before writing; "
+            "re-run to write the log again, or remove the file"
+        )
+    if head.startswith(_NPY_MAGIC):
+        raise ValueError(
+            f"{path} is a single .npy array, not a .npz log: logs are .npz archives written by "
+            "wbmpc.io.logs.save_log (one array per column plus a 'meta' entry)"
+        )
+    if not head.startswith(_ZIP_MAGIC):
+        raise ValueError(
+            f"{path} is not a .npz log: it does not start like a zip archive (first bytes {head!r}); it is "
+            "corrupt or another kind of file. wbmpc never loads pickled data: re-write the log with "
+            "wbmpc.io.logs.save_log"
+        )
+
+
+def _read_entry(archive, key: str, path: Path) -> np.ndarray:
+    """One array of the archive; an object (pickled) array is refused by name, never unpickled."""
+    try:
+        return archive[key]
+    except ValueError as exc:
+        if "allow_pickle" in str(exc) or "pickle" in str(exc):
+            raise ValueError(
+                f"{path}: entry {key!r} holds Python objects (pickled data), which wbmpc logs never contain "
+                "and never load: store that column as numbers or strings (np.asarray(values, dtype=float) "
+                "or dtype=str) and re-write the log with wbmpc.io.logs.save_log"
+            ) from None
+        raise
+
+
+def _reason(exc: BaseException) -> str:
+    """numpy's error text without its advice to unpickle (a log is never loaded with allow_pickle)."""
+    text = str(exc)
+    if "pickle" in text:
+        return "its contents are not valid .npz arrays"
+    return text
 
 
 def _parse_meta(text: str, where: str) -> dict:
@@ -219,6 +358,9 @@ class LogWriter:
         self.closed = False
         if self.parts.exists():
             shutil.rmtree(self.parts)
+        _make_parent(self.path, "log")
+        if self.path.is_dir():
+            raise IsADirectoryError(f"cannot write the log {self.path}: it is a folder; give a file name")
         self.path.unlink(missing_ok=True)
         self.parts.mkdir(parents=True)
         start = {"format_version": FORMAT_VERSION, **self.meta, "partial": True, "interrupted": _KILLED}
@@ -390,6 +532,7 @@ def _load_parts_meta(parts: Path) -> dict:
     """The metadata of a never-consolidated streamed log: ``meta.json``, partial, time reached, chunks."""
     meta_file = parts / "meta.json"
     meta = _parse_meta(meta_file.read_text(), str(meta_file)) if meta_file.exists() else {}
+    check_meta(meta, str(meta_file))
     meta["partial"] = True
     meta.setdefault("interrupted", _KILLED)
     chunks = _chunk_files(parts)

@@ -121,7 +121,7 @@ def export(
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     nlp = codegen.build(ocp, tuple(nlp_flags), progress=False).library
-    solver = make_nlpsol(SOLVER_NAME, "fatrop", ocp.nlp, options, nlp)
+    solver = make_nlpsol(SOLVER_NAME, "fatrop", ocp.nlp, options, nlp, n_nodes=ocp.n_nodes)
     shutil.copy(nlp, directory / "libwbmpc_nlp.so")
     shutil.copy(nlp.parent / "wbmpc_nlp.h", directory / "wbmpc_nlp.h")
     cwd = os.getcwd()
