@@ -1514,6 +1514,7 @@ def _foreign_library() -> Path:
     nlp = ca.Function("nlp", [x, p], [ca.sumsqr(x), x[:5]], ["x", "p"], ["f", "g"])
     generator = ca.CodeGenerator("foreign.c")
     generator.add(nlp)
+    generator.add(ca.Function("nlp_hess_l", [x, p], [ca.SX.eye(10)], ["x", "p"], ["hess"]))
     generator.generate(str(folder) + "/")
     library = folder / "libwbmpc_nlp.so"
     subprocess.run(
@@ -1551,6 +1552,143 @@ def test_catalogue(kind, call, error, message):
             call()
     assert message in str(err.value), f"{kind}: {err.value}"
     assert err.type is error or issubclass(err.type, error)
+
+
+# --- corrupt logs: never the advice to unpickle (issue 23) -------------------------------------------------
+@pytest.mark.parametrize(
+    "data", [b"hello, not a log", b"\x80\x04\x95 pickled", b"PK\x03\x04 truncated zip", b""], ids=repr
+)
+def test_a_corrupt_log_never_advises_allow_pickle(data):
+    with pytest.raises(ValueError) as err:
+        load_log(_file("corrupt.npz", data))
+    assert "corrupt.npz" in str(err.value)
+    assert "allow_pickle" not in str(err.value) and "pickle.load" not in str(err.value)
+
+
+def test_an_object_column_is_refused_by_name_never_unpickled():
+    path = _log_file("objects.npz", columns={"signals/t": np.arange(2.0), "signals/x": np.array([{}, 1])})
+    with pytest.raises(ValueError) as err:
+        load_log(path)
+    assert "entry 'signals/x' holds Python objects" in str(err.value)
+    assert "allow_pickle" not in str(err.value)
+
+
+# --- absurd measurements: a failed solve that names them, the loop goes on (issue 23) ----------------------
+def _absurd(kind: str):
+    robot = _b1z1()
+    q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
+    if kind == "base speed":
+        v[0] = 1e3
+    elif kind == "base rate":
+        v[5] = 200.0
+    elif kind == "quaternion":
+        q[3:7] *= 2.0
+    elif kind == "joint position":
+        q[7 + robot.joint_names.index("FL_calf_joint")] = 2.0
+    elif kind == "joint speed":
+        v[6 + robot.joint_names.index("RR_thigh_joint")] = 1e3
+    return q, v
+
+
+ABSURD = [
+    (
+        "base speed",
+        "absurd measurement: base speed |v_hat[0:3]| [m/s] = 1000, no legged robot moves faster than 20",
+    ),
+    ("base rate", "absurd measurement: base angular speed |v_hat[3:6]| [rad/s] = 200, above 50 rad/s"),
+    (
+        "quaternion",
+        "absurd measurement: |q_hat[3:7]| (base quaternion norm) = 2, a unit quaternion has norm 1",
+    ),
+    ("joint position", "joint position FL_calf_joint (q_hat[9]) = 2, 2.6 beyond its limits [-2.600, -0.600]"),
+    ("joint speed", "joint speed RR_thigh_joint (v_hat[16]) [rad/s] = 1000, over 5 times its limit"),
+]
+
+
+@pytest.mark.parametrize("kind, message", ABSURD, ids=[k for k, _ in ABSURD])
+def test_an_absurd_measurement_fails_the_solve_by_name_and_the_controller_falls_back(kind, message):
+    mpc = _module_mpc()
+    mpc.reset()
+    good = mpc.solve(mpc.robot.q_nominal, np.zeros(mpc.robot.nv))
+    assert good.success
+    failures = mpc.stats["failures"]
+    plan = mpc.solve(*_absurd(kind), t=0.02)
+    assert not plan.success and plan.fallback and not plan.hold  # the previous plan, shifted
+    assert plan.status == "absurd_measurement" and message in plan.reason
+    assert "the controller falls back" in plan.reason
+    assert any(f.code == "absurd_measurement" and message in f.message for f in plan.findings)
+    assert mpc.stats["failures"] == failures + 1
+    assert mpc.solve(mpc.robot.q_nominal, np.zeros(mpc.robot.nv), t=0.04).success  # the next tick solves
+    mpc.reset()
+    held = mpc.solve(*_absurd(kind))  # no plan yet: the static hold, still named
+    assert held.hold and held.status == "absurd_measurement" and message in held.reason
+
+
+def test_a_plausible_measurement_is_not_called_absurd():
+    from wbmpc.control.prechecks import absurd_measurement
+
+    robot = _b1z1()
+    q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
+    q[3:7] *= 1.05  # normalised by the MPC, not a fault
+    v[0], v[5] = 3.0, 5.0
+    q[7 + robot.joint_names.index("FL_calf_joint")] = -0.5  # 0.1 rad beyond: a joint_position_limit finding
+    assert absurd_measurement(robot, q, v) == []
+
+
+# --- the arm-torque precheck flags only what the MPC cannot meet (issue 23): both sides of the limit ------
+@functools.cache
+def _mpc_15_nodes():
+    return WholeBodyMPC(_b1z1(), OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand")))
+
+
+def test_an_upward_force_the_mpc_meets_is_not_called_infeasible():
+    """100 N up needs 40.7 N m at joint3 held still (limit 30): the plan lets the arm give way, meets it."""
+    from wbmpc.control.prechecks import ee_force_feasibility
+
+    robot = _b1z1()
+    inside = np.array([0.0, 0.0, 100.0])
+    findings = ee_force_feasibility(robot, robot.q_nominal, inside)
+    assert [f.severity for f in findings] == ["warning"] and findings[0].code == "ee_force_needs_arm_motion"
+    assert "joint3" in findings[0].message and "the arm has to move under the force" in findings[0].message
+    mpc = _mpc_15_nodes()
+    mpc.reset()
+    plan = mpc.solve(robot.q_nominal, np.zeros(robot.nv), commands=Commands(ee_force=inside))
+    assert plan.success, plan.reason
+    np.testing.assert_allclose(plan.forces[0, -1], inside, atol=1e-6)
+    assert not any(f.severity == "error" for f in plan.findings)
+
+
+def test_a_force_clearly_beyond_the_arm_is_an_error_and_beyond_the_weight_is_refused():
+    from wbmpc.control.prechecks import TORQUE_YIELD_FACTOR, ee_force_feasibility
+
+    robot = _b1z1()
+    beyond = ee_force_feasibility(robot, robot.q_nominal, np.array([0.0, 0.0, 150.0]))  # 65 N m at joint3
+    errors = [f for f in beyond if f.severity == "error"]
+    assert [f.code for f in errors] == ["ee_force_exceeds_torque_limit"]
+    assert errors[0].data["joint"] == "joint3" and errors[0].data["needed"] > TORQUE_YIELD_FACTOR * 30.0
+    assert "above its 30.0 N m limit" in errors[0].message
+    weight = robot.mass * robot.gravity
+    with pytest.raises(
+        ValueError, match="command refused: upward end-effector force .* exceeds the robot's weight"
+    ):
+        _mpc_solve(commands=Commands(ee_force=np.array([0.0, 0.0, weight + 50.0])))
+
+
+# --- a cached library of another problem is rebuilt, said once (issue 23) ---------------------------------
+def test_a_cached_library_of_another_horizon_is_not_reused():
+    import json
+
+    from wbmpc.solver import codegen
+
+    library = _foreign_library()
+    record = library.parent / "build.json"
+    info = json.loads(record.read_text())
+    record.write_text(json.dumps(info | {"library_sha256": codegen._sha256(library)}))
+    mpc = _module_mpc()
+    _, description = codegen.cache_key(mpc.ocp, codegen.DEFAULT_FLAGS)
+    with pytest.warns(UserWarning, match=r"was built for another problem \(N = 15 nodes.*requested N = 4"):
+        assert not codegen._valid(library, record, description)
+    record.write_text(json.dumps(info))
 
 
 # --- warned, not refused: the input can be right, the message says what to check and how to fix it ----------
