@@ -253,6 +253,9 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
             output.mkdir(parents=True, exist_ok=True)
             np.savez_compressed(output / "runtime_log.npz", **{k: np.asarray(v) for k, v in log.items()})
             summary["bag"] = _write_bag(log, output / "bag", robot)
+    from wbmpc.sim.summary import machine_description
+
+    summary["machine"] = machine_description()  # timing depends on it: name the CPU
     summary["worker"] = read_account(worker_stats)
     summary["robot"] = _robot_summary(read_account(robot_stats), config)
     shutil.rmtree(accounts, ignore_errors=True)
