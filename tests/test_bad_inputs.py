@@ -1296,6 +1296,27 @@ CATALOGUE = [
     ),
     (
         "silent",
+        "log chunks a float",
+        lambda: load_log(_log_file("chunks.npz", meta={"chunks": 2.5})),
+        C,
+        "chunks.npz: meta field 'chunks' must be an integer >= 0, got 2.5 (float)",
+    ),
+    (
+        "silent",
+        "log requested duration a string",
+        lambda: load_log(_log_file("duration.npz", meta={"requested_duration_s": "10"})),
+        C,
+        "meta field 'requested_duration_s' must be a number of seconds or null, got '10' (str)",
+    ),
+    (
+        "unclear",
+        "streamed log meta.json with a bad field",
+        lambda: load_log(_parts_folder({"format_version": "one"})),
+        C,
+        "meta.json: meta field 'format_version' must be an integer >= 0",
+    ),
+    (
+        "silent",
         "log joint names a string",
         lambda: save_log(RunLog(signals={"t": np.arange(3.0)}, meta={"joint_names": "FL_hip"}), _tmp() / "a"),
         C,
@@ -1493,6 +1514,15 @@ def _log_file(name: str, meta: dict | None = None, columns: dict | None = None) 
     columns = {"signals/t": np.arange(3.0)} if columns is None else columns
     np.savez(path, **columns, meta=np.array(json.dumps(meta or {})))
     return path
+
+
+def _parts_folder(meta: dict) -> Path:
+    """The ``.parts`` folder a killed streamed run leaves, with the given ``meta.json``."""
+    import json
+
+    parts = _tmp("run.npz.parts")
+    (parts / "meta.json").write_text(json.dumps(meta))
+    return parts
 
 
 def _npy_file() -> Path:
