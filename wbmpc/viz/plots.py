@@ -23,6 +23,13 @@ EE_COLOR = "#1f77b4"
 LIMIT_COLOR = "#d62728"
 NODE_TICK_COLOR = "0.85"
 DEFAULT_TORQUE_JOINTS = ("RL_calf_joint", "RR_calf_joint", "joint2")
+# Legends beside the axes (right of the panel), so that they never cover a curve.
+OUTSIDE_LEGEND = {
+    "loc": "upper left",
+    "bbox_to_anchor": (1.01, 1.0),
+    "borderaxespad": 0.0,
+    "fontsize": "small",
+}
 
 
 # --- files -----------------------------------------------------------------------------------------------
@@ -106,7 +113,7 @@ def plot_closed_loop(
         The figure.
     """
     t, q, v = (np.asarray(log[k], dtype=float) for k in ("t", "q", "v"))
-    fig = Figure(figsize=(11, 10), layout="constrained")
+    fig = Figure(figsize=(14, 10), layout="constrained")
     axes = fig.subplots(4, 2, sharex=True)
     (ax_h, ax_rp), (ax_v, ax_ee), (ax_err, ax_time), (ax_it, ax_c) = axes
     if title:
@@ -119,21 +126,21 @@ def plot_closed_loop(
     ax_rp.plot(t, rpy[:, 0], label="roll")
     ax_rp.plot(t, rpy[:, 1], label="pitch")
     ax_rp.set_ylabel("base roll, pitch [deg]")
-    ax_rp.legend(loc="upper right", fontsize="small")
+    ax_rp.legend(**OUTSIDE_LEGEND)
 
     forward = heading_velocity(q, v)[:, 0] if len(q) else np.zeros(0)
     ax_v.plot(t, forward, color="k", lw=0.8, label="measured")
     if base_velocity_command is not None:
         ax_v.axhline(base_velocity_command, color=LIMIT_COLOR, ls="--", label="command")
     ax_v.set_ylabel("forward velocity [m/s]")
-    ax_v.legend(loc="lower right", fontsize="small")
+    ax_v.legend(**OUTSIDE_LEGEND)
 
     ee, ref = np.asarray(log["ee_position"], dtype=float), np.asarray(log["ee_reference"], dtype=float)
     for axis, name, color in ((0, "x", EE_COLOR), (2, "z", "#17becf")):
         ax_ee.plot(t, ee[:, axis], color=color, label=f"{name}")
         ax_ee.plot(t, ref[:, axis], color=color, ls="--", lw=1, label=f"{name} reference")
     ax_ee.set_ylabel("end effector (world) [m]")
-    ax_ee.legend(loc="upper left", fontsize="small", ncol=2)
+    ax_ee.legend(**OUTSIDE_LEGEND)
 
     error = 1e3 * np.linalg.norm(ee - ref, axis=1)  # NaN before the first reference
     ax_err.plot(t, error, color=EE_COLOR)
@@ -142,7 +149,7 @@ def plot_closed_loop(
     if finite.size:
         rms = float(np.sqrt(np.mean(finite**2)))
         ax_err.axhline(rms, color="0.4", ls=":", label=f"RMS {rms:.1f} mm")
-        ax_err.legend(loc="upper right", fontsize="small")
+        ax_err.legend(**OUTSIDE_LEGEND)
 
     solve_t = np.asarray(log["solve_t"], dtype=float)
     solve_ms = 1e3 * np.asarray(log["solve_time"], dtype=float)
@@ -151,7 +158,7 @@ def plot_closed_loop(
     if warm.size:
         median = float(np.median(warm))
         ax_time.axhline(median, color=LIMIT_COLOR, ls="--", label=f"median {median:.0f} ms (warm)")
-        ax_time.legend(loc="upper right", fontsize="small")
+        ax_time.legend(**OUTSIDE_LEGEND)
         if solve_ms.max() > 5 * median:
             ax_time.set_yscale("log")
     ax_time.set_ylabel("solve time [ms]")
@@ -161,7 +168,7 @@ def plot_closed_loop(
     ax_it.step(solve_t, iterations, where="post", color="k", lw=0.8)
     if bad.any():
         ax_it.plot(solve_t[bad], iterations[bad], "o", color=LIMIT_COLOR, ms=4, label="failed / fallback")
-        ax_it.legend(loc="upper right", fontsize="small")
+        ax_it.legend(**OUTSIDE_LEGEND)
     ax_it.set_ylabel("iterations")
 
     _contact_chart(ax_c, t, np.asarray(log["contact"], dtype=bool), robot)
@@ -218,23 +225,26 @@ def plot_torques(log: Mapping[str, np.ndarray], robot: Robot, joints: Sequence[s
             ax.axhline(sign * limits[j], color=LIMIT_COLOR, ls="--", lw=1, label=label)
         ax.set_ylabel(f"{name} [N m]")
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize="small", ncol=3)
+    axes[0].legend(**OUTSIDE_LEGEND)
     axes[-1].set_xlabel("time [s]")
     return fig
 
 
 # --- one plan --------------------------------------------------------------------------------------------
-def plot_plan(plan, robot: Robot) -> Figure:
-    """What one MPC solve plans over its horizon (4 panels sharing the horizon time axis).
+def plot_plan(plan, robot: Robot, commands=None) -> Figure:
+    """What one MPC solve plans over its horizon (5 panels sharing the horizon time axis).
 
     Panels: vertical force of each foot per stage (a step plot: stage ``k`` holds over
-    ``[t_k, t_{k+1})``) with the half-weight line; end-effector height and base height at the nodes; the
+    ``[t_k, t_{k+1})``) with the half-weight line; the base velocity in the heading frame at the nodes
+    (forward and lateral, with the commanded ones); end-effector height and base height at the nodes; the
     time grid (node ticks, step sizes) with the contact schedule. Light vertical lines mark the nodes on
-    every panel.
+    every panel. Legends stand beside the panels, never over the data.
 
     Args:
         plan: A :class:`wbmpc.control.mpc.MPCSolution`.
         robot: The robot (frames, mass).
+        commands: The :class:`wbmpc.control.config.Commands` of the solve, to draw the commanded base
+            velocity; ``None`` draws none.
 
     Returns:
         The figure.
@@ -244,9 +254,9 @@ def plot_plan(plan, robot: Robot) -> Figure:
     q = np.asarray(plan.q, dtype=float)
     forces = np.asarray(plan.forces, dtype=float)
     contact = np.asarray(plan.contact, dtype=bool)
-    fig = Figure(figsize=(9, 9), layout="constrained")
-    ax_f, ax_ee, ax_base, ax_grid = fig.subplots(4, 1, sharex=True, height_ratios=[3, 2, 2, 2])
-    for ax in (ax_f, ax_ee, ax_base, ax_grid):
+    fig = Figure(figsize=(10, 11), layout="constrained")
+    ax_f, ax_v, ax_ee, ax_base, ax_grid = fig.subplots(5, 1, sharex=True, height_ratios=[3, 2, 2, 2, 2])
+    for ax in (ax_f, ax_v, ax_ee, ax_base, ax_grid):
         for tk in times:
             ax.axvline(tk, color=NODE_TICK_COLOR, lw=0.8, zorder=0)
 
@@ -263,7 +273,24 @@ def plot_plan(plan, robot: Robot) -> Figure:
     half_weight = 0.5 * robot.mass * robot.gravity
     ax_f.axhline(half_weight, color="0.3", ls=":", lw=1, label=f"m g / 2 = {half_weight:.0f} N")
     ax_f.set_ylabel("foot force $F_z$ [N]")
-    ax_f.legend(loc="upper right", fontsize="small", ncol=5)
+    ax_f.legend(**OUTSIDE_LEGEND)
+
+    v_nodes = getattr(plan, "v", None)
+    if v_nodes is not None and len(q):
+        heading = heading_velocity(q, np.asarray(v_nodes, dtype=float))
+        ax_v.plot(times, heading[:, 0], "o-", color="k", ms=4, label="forward (plan)")
+        ax_v.plot(times, heading[:, 1], "s-", color="0.55", ms=3, lw=1, label="lateral (plan)")
+    if commands is not None:
+        command = np.asarray(commands.base_linear_velocity, dtype=float)
+        ax_v.axhline(
+            command[0], color=LIMIT_COLOR, ls="--", lw=1.2, label=f"forward command {command[0]:g} m/s"
+        )
+        if command[1]:
+            ax_v.axhline(
+                command[1], color=LIMIT_COLOR, ls=":", lw=1.2, label=f"lateral command {command[1]:g} m/s"
+            )
+    ax_v.set_ylabel("base velocity [m/s]\n(heading frame)")
+    ax_v.legend(**OUTSIDE_LEGEND)
 
     if robot.has_arm:
         model, data = robot.model, robot.model.createData()
@@ -291,7 +318,7 @@ def plot_plan(plan, robot: Robot) -> Figure:
         fontsize="medium",
     )
     ax_grid.set_xlabel("time in the horizon [s]")
-    for ax in (ax_f, ax_ee, ax_base):
+    for ax in (ax_f, ax_v, ax_ee, ax_base):
         ax.grid(axis="y", alpha=0.3)
     status = "converged" if plan.success else "NOT converged"
     fig.suptitle(

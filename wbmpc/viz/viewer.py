@@ -16,7 +16,10 @@ the box swept by the base and stands back far enough for the whole motion
 
 from __future__ import annotations
 
+import base64
+import html
 import io
+import math
 import time
 from contextlib import redirect_stdout
 from pathlib import Path
@@ -72,6 +75,7 @@ class Viewer:
         self.mesh_resolution = mesh_resolution
         self.meshcat = _start_meshcat(zmq_url, timeout)
         self._owns_server = zmq_url is None
+        self._closed = False
         self.viz = self._load_robot("robot")
         self._ghosts: dict[int, _RobotVisualizer] = {}
         self._arrows: set[str] = set()
@@ -80,6 +84,18 @@ class Viewer:
         self.camera_position = np.zeros(3)
         self.frame_motion(robot.q_nominal[None, :3])
         self.display(robot.q_nominal)
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` ran: the scene can no longer be changed (create a new :class:`Viewer`)."""
+        return self._closed
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ViewerUnavailableError(
+                "this viewer was closed (Viewer.close() stopped its meshcat server), so the 3-D view cannot "
+                "change any more; create a new one with Viewer(robot)"
+            )
 
     def _load_robot(self, root: str, color=None, resolution: float | None = None) -> _RobotVisualizer:
         viz = _RobotVisualizer(self.model, self.geometry, resolution or self.mesh_resolution)
@@ -96,6 +112,43 @@ class Viewer:
     def jupyter_cell(self, height: int = 400):
         """An IFrame of the live scene for a notebook cell (make it the cell's last expression)."""
         return self.meshcat.jupyter_cell(height=height)
+
+    def notebook_view(self, height: int = 400, snapshot: bool = True):
+        """The live scene for a notebook cell, with a static snapshot saved along with the notebook.
+
+        The live view is an IFrame on the meshcat server: it follows every later change of the scene
+        (re-solves, replays) but shows nothing once the kernel is gone. Under it, folded, is the scene as it
+        is now as a self-contained page (:meth:`static_html`, loaded only when unfolded), so a saved and
+        reopened notebook still shows the robot. Make it the cell's last expression.
+
+        Args:
+            height: Height of each view [px].
+            snapshot: Add the static snapshot.
+
+        Returns:
+            An :class:`IPython.display.HTML` object.
+        """
+        from IPython.display import HTML
+
+        self._check_open()
+        parts = [
+            f'<iframe class="wbmpc-live-scene" src="{html.escape(self.url)}" width="100%" height="{height}" '
+            'style="border: 0"></iframe>'
+        ]
+        if snapshot:
+            page = base64.b64encode(self.static_html().encode("utf-8")).decode("ascii")
+            parts.append(
+                "<details><summary>static snapshot of this scene (saved with the notebook, opens without the "
+                "kernel)</summary>"
+                f'<iframe class="wbmpc-static-scene" loading="lazy" src="data:text/html;base64,{page}" '
+                f'width="100%" height="{height}" style="border: 0"></iframe></details>'
+            )
+        return HTML("".join(parts))
+
+    def static_html(self) -> str:
+        """The current scene (with its animation, if any) as a self-contained HTML page."""
+        self._check_open()
+        return self.meshcat.static_html()
 
     def set_camera(self, position=CAMERA_DIRECTION, target=(0.0, 0.0, 0.0)) -> None:
         """Place the camera at ``position`` [m] looking at ``target`` [m] (world axes, z up).
@@ -127,6 +180,7 @@ class Viewer:
 
     def display(self, q: np.ndarray) -> None:
         """Place the robot at configuration ``q`` (nq,)."""
+        self._check_open()
         q = np.asarray(q, dtype=float)
         self.viz.display(q)
         pin.framesForwardKinematics(self.model, self.data, q)
@@ -140,6 +194,7 @@ class Viewer:
 
     def clear(self, name: str | None = None) -> None:
         """Delete drawn overlays: one node (``"plan"``, ``"forces"``, ``"paths/ee"``...) or all of them."""
+        self._check_open()
         names = [name] if name is not None else ["forces", "paths", "plan", "ghosts"]
         for node in names:
             self.meshcat[node].delete()
@@ -148,7 +203,13 @@ class Viewer:
             self._ghosts.clear()
 
     def close(self) -> None:
-        """Stop the meshcat server this viewer started (a no-op for an external server)."""
+        """Stop the meshcat server this viewer started (a no-op for an external server).
+
+        Later changes of the scene raise :class:`ViewerUnavailableError` saying so.
+        """
+        if self._closed:
+            return
+        self._closed = True
         window = self.meshcat.window
         window.zmq_socket.close(linger=0)
         proc = getattr(window, "server_proc", None)
@@ -234,6 +295,7 @@ class Viewer:
         Returns:
             The predicted positions [m]: ``feet`` (N, n_feet, 3), ``ee`` (N, 3) or ``None``, ``base`` (N, 3).
         """
+        self._check_open()
         q_nodes = np.asarray(plan.q)
         paths = self.predicted_paths(q_nodes)
         self.display(q_nodes[0])
@@ -278,7 +340,7 @@ class Viewer:
         contact: np.ndarray | None = None,
         fps: float = 30.0,
         play: bool = True,
-        repetitions: int = 1,
+        repetitions: float = math.inf,
         foot_scale: float = 1e-3,
         arm_scale: float = 2e-3,
         frame_camera: bool = True,
@@ -297,13 +359,15 @@ class Viewer:
             contact: Foot contact flags (n or n-1, n_feet); ``None``: arrows wherever the force is nonzero.
             fps: Frames per second of the replay (real-time playback).
             play: Start playing at once.
-            repetitions: Number of times the replay plays.
+            repetitions: Number of times the replay plays; ``math.inf`` (the default) loops until paused.
+                Meshcat's "Animations" panel has play/pause/reset and a time slider to scrub through it.
             foot_scale, arm_scale: Arrow lengths per newton [m/N].
             frame_camera: Set the camera from the motion's bounds.
 
         Returns:
             The meshcat animation (already sent).
         """
+        self._check_open()
         qs = np.asarray(qs, dtype=float)
         times = np.asarray(times, dtype=float)
         if qs.ndim != 2 or len(qs) != len(times) or len(qs) < 1:
@@ -360,7 +424,7 @@ class Viewer:
         """
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(self.meshcat.static_html(), encoding="utf-8")
+        path.write_text(self.static_html(), encoding="utf-8")
         return path
 
     # --- helpers -----------------------------------------------------------------------------------------

@@ -82,6 +82,7 @@ from wbmpc.studies.sweeps.engine import (
     write_table,
 )
 from wbmpc.studies.sweeps.reports import (
+    committed_table,
     heatmap,
     nodes_figures,
     payload_figures,
@@ -92,6 +93,7 @@ from wbmpc.studies.sweeps.reports import (
 )
 
 __all__ = [
+    "committed_table",
     "BENCHMARK_CASE",
     "DIRECTIONS",
     "FIGURES",

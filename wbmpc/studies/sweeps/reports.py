@@ -19,6 +19,9 @@ def heatmap(
     cmap: str = "viridis",
     title: str | None = None,
     annotate: bool = True,
+    vmin: float | None = None,
+    vmax: float | None = None,
+    fontsize: float = 8,
 ):
     """Heatmap of a result over two parameters (other parameters, e.g. seeds, are aggregated).
 
@@ -33,7 +36,9 @@ def heatmap(
         ax: Axes to draw into (default: a new figure).
         cmap: Colour map.
         title: Axes title (default: the value's name).
-        annotate: Write each cell's value.
+        annotate: Write each cell's value (black on light cells, white on dark ones).
+        vmin, vmax: Limits of the colour scale (default: the data's).
+        fontsize: Font size [pt] of the cell values, the title and the axis labels.
 
     Returns:
         The matplotlib figure.
@@ -64,25 +69,67 @@ def heatmap(
     else:
         fig = ax.figure
     colours = plt.get_cmap(cmap).with_extremes(bad="lightgrey")
-    image = ax.imshow(np.ma.masked_invalid(table), cmap=colours, origin="lower", aspect="auto")
+    image = ax.imshow(
+        np.ma.masked_invalid(table), cmap=colours, origin="lower", aspect="auto", vmin=vmin, vmax=vmax
+    )
     fig.colorbar(image, ax=ax)
     ax.set_xticks(range(len(xs)), [f"{v:g}" if isinstance(v, float) else str(v) for v in xs])
     ax.set_yticks(range(len(ys)), [f"{v:g}" if isinstance(v, float) else str(v) for v in ys])
     name = value if isinstance(value, str) else getattr(value, "__name__", "value")
-    ax.set(xlabel=x, ylabel=y, title=title or name)
+    ax.set_xlabel(x, fontsize=fontsize)
+    ax.set_ylabel(y, fontsize=fontsize)
+    ax.set_title(title or name, fontsize=fontsize)
+    ax.tick_params(labelsize=fontsize)
     if annotate:
         for (i, j), v in np.ndenumerate(table):
             if not np.isnan(v):
-                ax.text(j, i, f"{v:.3g}", ha="center", va="center", fontsize=8, color="white")
+                colour = text_color(image, v)
+                ax.text(j, i, f"{v:.3g}", ha="center", va="center", fontsize=fontsize, color=colour)
     return fig
 
 
+def text_color(image, value: float) -> str:
+    """``"black"`` or ``"white"``, whichever reads better on the colour ``image`` gives ``value``."""
+    r, g, b, _ = image.cmap(image.norm(value))
+    return "black" if 0.299 * r + 0.587 * g + 0.114 * b > 0.5 else "white"
+
+
 # ------------------------------------------------------------------------------------------ study figures
-def robustness_figures(rows: list[dict], directory: str | Path) -> list[Path]:
+def committed_table(name: str) -> list[dict]:
+    """The rows of the committed sweep table ``<repo>/data/results/sweeps/<name>.csv``.
+
+    Found from the package's location (like :func:`wbmpc.viz.plots.repo_root`), not the current folder, so a
+    notebook started from anywhere reads the same data.
+
+    Raises:
+        FileNotFoundError: the table is not there (or holds no row), with the path looked at.
+    """
+    from wbmpc.viz.plots import repo_root
+
+    path = repo_root() / "data" / "results" / "sweeps" / f"{name}.csv"
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"the committed sweep table {path} is missing: it comes with the repository (git checkout "
+            f"data/results/sweeps) or is rewritten by `python -m wbmpc.studies.sweeps robustness`"
+        )
+    from wbmpc.studies.sweeps.engine import read_table
+
+    rows = read_table(path)
+    if not rows:
+        raise FileNotFoundError(f"the committed sweep table {path} holds no rows")
+    return rows
+
+
+FIGURE_FONT_SIZE = 9  # [pt]: every text of the robustness figures, so that they read alike side by side
+
+
+def robustness_figures(rows: list[dict], directory: str | Path, min_cells: int = 2) -> list[Path]:
     """Heatmaps of a robustness table over kick magnitude x gait phase: survival (mean over seeds) and the
     peak calf torque over its limit, one figure per direction (rows: delays; columns: the two). A table that
     compares the swing abort on and off (a ``kick_recovery`` column with numbers and empty cells, empty
     meaning off) gets one figure per setting: ``robustness_<direction>[_recovery_off|_recovery_<value>].png``.
+    A direction with fewer than ``min_cells`` cells (magnitude x phase) gets no figure: a map of one cell says
+    less than the report's line (:func:`robustness_report`).
     """
     import matplotlib
 
@@ -102,7 +149,7 @@ def robustness_figures(rows: list[dict], directory: str | Path) -> list[Path]:
                 for r in done
                 if r.get("direction", "lateral") == direction and r.get("kick_recovery") == setting
             ]
-            if not mine:
+            if len({(r["magnitude"], r["phase"]) for r in mine}) < max(min_cells, 1):
                 continue
             suffix = "" if not compare else "_recovery_off" if setting is None else f"_recovery_{setting:g}"
             tag = "" if not compare else ", swing abort off" if setting is None else ", swing abort on"
@@ -115,14 +162,15 @@ def robustness_figures(rows: list[dict], directory: str | Path) -> list[Path]:
                 cell = [r for r in mine if (r.get("delay") or 0.0) == delay]
                 label = "no delay" if not delay else f"delay {1e3 * delay:g} ms"
                 heatmap(cell, lambda r: float(r["status"] == "ok"), x="phase", y="magnitude", ax=axes[i, 0],
-                        cmap="RdYlGn", title=f"survival, {label}")  # fmt: skip
+                        cmap="RdYlGn", title=f"survival (fraction), {label}", vmin=0.0, vmax=1.0,
+                        fontsize=FIGURE_FONT_SIZE)  # fmt: skip
                 heatmap(cell, "calf_torque_ratio", x="phase", y="magnitude", ax=axes[i, 1], cmap="magma",
-                        title=f"peak calf torque / limit, {label}")  # fmt: skip
+                        title=f"peak calf torque / limit, {label}", vmin=0.0, vmax=1.0,
+                        fontsize=FIGURE_FONT_SIZE)  # fmt: skip
                 for ax in axes[i]:
-                    ax.images[0].set_clim(0.0, 1.0)
-                    ax.title.set_fontsize(9)
-                    ax.set(xlabel="gait phase of the kick", ylabel="kick [m/s]")
-            fig.suptitle(f"{direction} kick while trotting in place{tag}", fontsize=10)
+                    ax.set_xlabel("gait phase of the kick", fontsize=FIGURE_FONT_SIZE)
+                    ax.set_ylabel("kick [m/s]", fontsize=FIGURE_FONT_SIZE)
+            fig.suptitle(f"{direction} kick while trotting in place{tag}", fontsize=FIGURE_FONT_SIZE + 1)
             path = directory / f"robustness_{direction}{suffix}.png"
             fig.savefig(path, dpi=110)
             paths.append(path)
