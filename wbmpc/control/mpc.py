@@ -379,13 +379,14 @@ class WholeBodyMPC:
                 f"q_hat[3:7] is the base quaternion (x, y, z, w) and must not be zero, got {q_hat[3:7]}"
             )
         # A state no robot can be in (a sensor fault) is not solved: a failed solve that names it.
-        absurd = tuple(self.prechecks.absurd_measurement(q_hat, v_hat))
+        measured = tuple(self.prechecks.absurd_measurement(q_hat, v_hat))
+        absurd = tuple(f for f in measured if f.severity == "error")
         q_hat[3:7] /= norm
         commands = (commands or Commands()).validated()
         # Cheap physical checks (~0.1 ms): explain a failure before it happens; refuse ill-posed commands.
         gait = self.gait(commands)
         gait = gait.gait_at(t) if isinstance(gait, GaitSchedule) else gait  # the gait in force now
-        findings = absurd + tuple(self.prechecks.run(q_hat, v_hat, commands, gait))
+        findings = measured + tuple(self.prechecks.run(q_hat, v_hat, commands, gait))
         for finding in findings:
             if finding.code in REFUSED_FINDINGS:
                 raise ValueError(f"command refused: {finding.message}")

@@ -371,13 +371,15 @@ def absurd_measurement(robot: Robot, q: np.ndarray, v: np.ndarray, *, info: _Rob
     """Measured states no robot can be in: a sensor, estimator or unit fault, not a hard problem.
 
     Checked on the measurement as given (before the MPC normalises its quaternion): a base quaternion whose
-    norm is off 1 by more than :data:`ABSURD_QUATERNION_NORM`, a base speed above
+    norm is off 1 by more than :data:`ABSURD_QUATERNION_NORM` (a warning, ``non_unit_quaternion``: the MPC
+    normalises it, any non-zero quaternion is a rotation), a base speed above
     :data:`ABSURD_BASE_SPEED` or rate above :data:`ABSURD_BASE_RATE`, joint positions more than
     :data:`ABSURD_JOINT_EXCESS` beyond their limits, joint speeds above :data:`ABSURD_JOINT_SPEED_FACTOR`
     times their limits. Non-finite states are the caller's (the MPC refuses them as bad input).
 
     Returns:
-        ``absurd_measurement`` errors, one per measurement, each naming it, its value and the bound.
+        ``absurd_measurement`` errors (the MPC skips the solve and falls back), one per measurement, each
+        naming it, its value and the bound; the ``non_unit_quaternion`` warning.
     """
     q = np.asarray(q, dtype=float)
     v = np.asarray(v, dtype=float)
@@ -386,23 +388,22 @@ def absurd_measurement(robot: Robot, q: np.ndarray, v: np.ndarray, *, info: _Rob
     info = _resolve(robot, info)
     found = []
 
-    def add(what: str, value: float, bound: str, hint: str) -> None:
+    def add(what: str, value: float, bound: str, hint: str, code="absurd_measurement", severity="error"):
+        label = "absurd measurement" if severity == "error" else "suspicious measurement"
         found.append(
-            Finding(
-                "absurd_measurement",
-                "error",
-                f"absurd measurement: {what} = {value:.4g}, {bound}; {hint}",
-                {"measurement": what, "value": float(value)},
-            )
+            Finding(code, severity, f"{label}: {what} = {value:.4g}, {bound}; {hint}", {"measurement": what})
         )
+        found[-1].data["value"] = float(value)
 
     norm = float(np.linalg.norm(q[3:7]))
-    if abs(norm - 1.0) > ABSURD_QUATERNION_NORM:
+    if abs(norm - 1.0) > ABSURD_QUATERNION_NORM:  # a warning: a quaternion of any norm is a rotation
         add(
             "|q_hat[3:7]| (base quaternion norm)",
             norm,
-            f"a unit quaternion has norm 1 (tolerance {ABSURD_QUATERNION_NORM})",
+            f"a unit quaternion has norm 1 (tolerance {ABSURD_QUATERNION_NORM}; it is normalised)",
             "check the attitude estimate (order x, y, z, w; not Euler angles)",
+            code="non_unit_quaternion",
+            severity="warning",
         )
     speed = float(np.linalg.norm(v[0:3]))
     if speed > ABSURD_BASE_SPEED:
