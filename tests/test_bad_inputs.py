@@ -1712,21 +1712,35 @@ def test_a_force_clearly_beyond_the_arm_is_an_error_and_beyond_the_weight_is_ref
         _mpc_solve(commands=Commands(ee_force=np.array([0.0, 0.0, weight + 50.0])))
 
 
-# --- a cached library of another problem is rebuilt, said once (issue 23) ---------------------------------
-def test_a_cached_library_of_another_horizon_is_not_reused():
+# --- a cache entry holding a library of another horizon is named with the fix (issue 23) -------------------
+def test_a_cached_library_of_another_horizon_is_named_with_the_fix(tmp_path, monkeypatch):
     import json
+    import shutil
 
     from wbmpc.solver import codegen
 
-    library = _foreign_library()
-    record = library.parent / "build.json"
-    info = json.loads(record.read_text())
-    record.write_text(json.dumps(info | {"library_sha256": codegen._sha256(library)}))
-    mpc = _module_mpc()
-    _, description = codegen.cache_key(mpc.ocp, codegen.DEFAULT_FLAGS)
-    with pytest.warns(UserWarning, match=r"was built for another problem \(N = 15 nodes.*requested N = 4"):
-        assert not codegen._valid(library, record, description)
-    record.write_text(json.dumps(info))
+    robot = _b1z1()
+    mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=4), MPCConfig(gait=make_gait("stand")), SolverSettings(compiled=True)
+    )
+    mpc.verbose = False
+    key, _ = codegen.cache_key(mpc.ocp, tuple(mpc.solver_settings.compile_flags))
+    entry = tmp_path / key  # the entry of this 4-node OCP, holding a 15-node library (e.g. a copied cache)
+    entry.mkdir()
+    shutil.copy(_foreign_library(), entry / "libwbmpc_nlp.so")
+    record = {"ocp_settings": {"n_nodes": 15}, "build_s": 1.0, "build_peak_mb": 1.0, "c_bytes": 1}
+    record["library_sha256"] = codegen._sha256(entry / "libwbmpc_nlp.so")
+    (entry / "build.json").write_text(json.dumps(record))
+    monkeypatch.setenv("WBMPC_CACHE_DIR", str(tmp_path))
+    with pytest.raises(ValueError) as err:
+        mpc.solve(robot.q_nominal, np.zeros(robot.nv))
+    message = str(err.value)
+    assert (
+        f"the compiled NLP library {entry / 'libwbmpc_nlp.so'} was built for N = 15 nodes, not for N = 4"
+        in message
+    )
+    assert "wbmpc.solver.codegen.build(ocp, force=True)" in message and f"delete {entry}" in message
+    assert "option has wrong length" not in message
 
 
 # --- warned, not refused: the input can be right, the message says what to check and how to fix it ----------

@@ -32,7 +32,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -407,7 +406,7 @@ def build(
     with open(folder / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process dies
         remove_stale_builds(folder.parent, locked=folder)
-        if not force and _valid(library, record, description):
+        if not force and _valid(library, record):
             info = json.loads(record.read_text())
             return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], False)
         start = time.perf_counter()
@@ -494,31 +493,14 @@ def _remove(paths: list[Path]) -> list[Path]:
     return [path for path in paths if not path.exists()]
 
 
-def _valid(library: Path, record: Path, description: dict) -> bool:
-    """The cached library matches its record, loads, and was built for this problem (settings, sizes)."""
+def _valid(library: Path, record: Path) -> bool:
     if not (library.is_file() and record.is_file()):
         return False
     try:
-        info = json.loads(record.read_text())
-        if info.get("library_sha256") != _sha256(library):
+        if json.loads(record.read_text()).get("library_sha256") != _sha256(library):
             return False
         ca.external("nlp_hess_l", str(library))
-        nlp = ca.external("nlp", str(library))
     except (ValueError, RuntimeError, OSError):
-        return False
-    sizes = {"variables": nlp.numel_in(0), "params": nlp.numel_in(1), "constraints": nlp.numel_out(1)}
-    built_for = (info.get("ocp_settings"), info.get("ocp_size"))
-    if sizes != description["ocp_size"] or built_for != (
-        description["ocp_settings"],
-        description["ocp_size"],
-    ):
-        cached = (info.get("ocp_settings") or {}).get("n_nodes", "?")
-        warnings.warn(
-            f"the cached NLP library {library} was built for another problem (N = {cached} nodes, "
-            f"{sizes['variables']} variables; requested N = {description['ocp_settings']['n_nodes']}, "
-            f"{description['ocp_size']['variables']} variables): rebuilding it",
-            stacklevel=3,
-        )
         return False
     return True
 
