@@ -97,3 +97,44 @@ def test_title(path):
 def test_quick_flag(path):
     problems = check_quick_flag(path)
     assert not problems, f"{path.name}: " + "; ".join(problems)
+
+
+# --- numbers quoted in markdown, checked against what the cells compute ---------------------------------
+def _markdown(path: Path) -> str:
+    return "\n".join(c.source for c in _read(path).cells if c.cell_type == "markdown")
+
+
+def test_robustness_notebook_quotes_its_tables():
+    """Notebook 06's text quotes counts of the committed sweep tables its cells read: they must match."""
+    from wbmpc.studies import sweeps
+
+    text = " ".join(_markdown(REPO_ROOT / "notebooks" / "06_robustness_sweeps.ipynb").split())
+
+    def ok(rows):
+        return sum(r["status"] == "ok" for r in rows)
+
+    final = sweeps.committed_table("robustness_landing")
+    up_to = [r for r in final if r["status"] in ("ok", "fell") and r["magnitude"] <= 0.8 + 1e-9]
+    lift_off = [r for r in up_to if r["phase"] in (0.0, 0.5)]
+    assert f"`robustness_landing.csv`, {len(final)} cases" in text
+    assert (
+        f"{ok(up_to)} of the {len(up_to)} cases up to 0.8 m/s stand ({100 * ok(up_to) / len(up_to):.0f} %)"
+        in text
+    )
+    assert f"{ok(lift_off)} of the {len(lift_off)} lift-off cases" in text
+
+    grid = sweeps.committed_table("robustness_grid")
+    up_to = [r for r in grid if r["magnitude"] <= 0.8 + 1e-9]
+    assert f"{ok(up_to)} of the {len(up_to)} cases stand ({100 * ok(up_to) / len(up_to):.1f} %)" in text
+    undisturbed = {
+        delay: [
+            r["calf_torque_ratio"] for r in grid if (r["delay"] or 0.0) == delay and r["magnitude"] == 0.0
+        ]
+        for delay in (0.0, 0.0125)
+    }
+    low, high = (round(100 * f(undisturbed[0.0])) for f in (min, max))
+    assert f"uses {low}-{high} % of it ({round(100 * max(undisturbed[0.0125]))} % with the delay)" in text
+
+    forward = [r for r in sweeps.committed_table("robustness") if r.get("direction") == "forward"]
+    assert "not in this grid" not in text, "the forward case is in the table (and in its report)"
+    assert forward and all(r["status"] == "fell" for r in forward), "the text says the forward case falls"
