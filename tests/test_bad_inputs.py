@@ -1648,6 +1648,34 @@ def test_an_absurd_measurement_fails_the_solve_by_name_and_the_controller_falls_
     assert held.hold and held.status == "absurd_measurement" and message in held.reason
 
 
+def test_an_absurd_measurement_in_the_closed_loop_is_counted_and_explained_and_the_run_goes_on(
+    monkeypatch, capsys
+):
+    from wbmpc.sim.closed_loop import run_closed_loop
+    from wbmpc.sim.planner import Planner
+
+    mpc = _module_mpc()
+    mpc.reset()
+    real = Planner.plan
+
+    def faulty_sensor(self, q_meas, v_meas, t, plan_in_use, record_delay=True):
+        if 0.1 <= t < 0.15:  # the base velocity estimate reads 1 km/s for a few ticks
+            v_meas = v_meas.copy()
+            v_meas[0] = 1e3
+        return real(self, q_meas, v_meas, t, plan_in_use, record_delay)
+
+    monkeypatch.setattr(Planner, "plan", faulty_sensor)
+    config = ClosedLoopConfig(duration=0.3, commands=CommandSchedule(base_velocity=(0.0, 0.0, 0.0)))
+    result = run_closed_loop(mpc, config, progress=False)
+    assert not result.fell
+    reasons = result.summary["diagnostics"]["failure_reasons"]
+    assert set(reasons) == {"absurd_measurement"} and reasons["absurd_measurement"] == 4  # 80 Hz for 50 ms
+    status = list(result.log.run_log().solves["status"])
+    assert status.count("absurd_measurement") == 4 and status.count("success") == len(status) - 4
+    printed = capsys.readouterr().out
+    assert "absurd_measurement" in printed and "base speed |v_hat[0:3]| [m/s] = 1000" in printed
+
+
 def test_a_non_unit_quaternion_is_solved_with_a_warning_that_names_it():
     """Any non-zero quaternion is a rotation (the MPC normalises it); a norm far from 1 is worth a look."""
     mpc = _module_mpc()
