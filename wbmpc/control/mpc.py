@@ -360,7 +360,9 @@ class WholeBodyMPC:
             warm_start: Start from the previous plan if there is one (else a cold start).
 
         Returns:
-            The new plan, or the previous one shifted in time with ``fallback=True`` if the solve failed.
+            The new plan, or the previous one shifted in time with ``fallback=True`` if the solve failed;
+            a measured state no robot can be in (:func:`wbmpc.control.prechecks.absurd_measurement`) is
+            such a failure, status ``absurd_measurement``, its reason naming the measurement (not solved).
 
         Raises:
             ValueError: wrong shape or NaN in the state or the commands, a zero quaternion, an upward

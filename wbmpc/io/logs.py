@@ -26,6 +26,12 @@ streamed logs: ``partial`` (True if the run stopped before its end), ``t_reached
 consolidated) is read by :func:`load_log` too, given either the folder or the ``.npz`` path it was meant
 for, and marked ``partial``; :func:`consolidate` turns it into the ``.npz``.
 
+Errors name the file and the fix: a directory that is no ``.parts`` folder, a file that is not a ``.npz``
+archive (its first bytes are checked; nothing is ever unpickled, and numpy's advice to load with
+``allow_pickle`` is never passed on), a column of Python objects, a meta field of the wrong type
+(:func:`check_meta`: ``format_version``, ``partial``, ``t_reached``, ``chunks``, ...), and, when writing, a
+file where a folder of the path should be.
+
 Columns written by :func:`wbmpc.sim.closed_loop.run_closed_loop` (units SI, world axes unless stated):
 
 =====================  =========================================================================
