@@ -106,9 +106,37 @@ def test_plot_torques_custom_joints(robot, log):
 
 def test_plot_plan(robot, plan):
     fig = plot_plan(plan, robot)
-    _check_labels(fig, 4)
+    _check_labels(fig, 5)
     assert fig.axes[-1].get_xlabel() == "time in the horizon [s]"
     assert "15 nodes" in fig.axes[-1].get_title()
+
+
+def test_plot_plan_shows_the_base_velocity_and_its_command(robot, plan):
+    from types import SimpleNamespace
+
+    moving = SimpleNamespace(**vars(plan), v=np.zeros((len(plan.q), robot.nv)))
+    moving.v[:, 0] = np.linspace(0.0, 0.3, len(plan.q))  # base frame x = forward for a level base
+    fig = plot_plan(moving, robot, commands=SimpleNamespace(base_linear_velocity=np.array([0.35, 0.0, 0.0])))
+    ax_v = next(ax for ax in fig.axes if ax.get_ylabel().startswith("base velocity"))
+    lines = {line.get_label(): line for line in ax_v.get_lines()}
+    np.testing.assert_allclose(lines["forward (plan)"].get_ydata(), moving.v[:, 0], atol=1e-12)
+    assert np.allclose(lines["forward command 0.35 m/s"].get_ydata(), 0.35)
+
+
+def _legends_outside(fig: Figure) -> None:
+    fig.canvas.draw()
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        box, frame = legend.get_window_extent(), ax.get_window_extent()
+        assert box.x0 >= frame.x1 - 1, f"the legend of {ax.get_ylabel()!r} covers the panel"
+
+
+def test_legends_do_not_cover_the_data(robot, log, plan):
+    _legends_outside(plot_plan(plan, robot))
+    _legends_outside(plot_closed_loop(log, robot, base_velocity_command=0.2))
+    _legends_outside(plot_torques(log, robot))
 
 
 def test_plots_leave_pyplot_alone(robot, log, plan):

@@ -237,3 +237,115 @@ def test_robot_radius_holds_the_robot(robot):
         for f in robot.contact_frames
     )
     assert reach < radius < 2.0
+
+
+# --- a closed viewer, the notebook view -----------------------------------------------------------------
+def test_notebook_view_has_the_live_scene_and_a_snapshot(viewer):
+    page = viewer.notebook_view(height=300).data
+    assert f'src="{viewer.url}"' in page and "wbmpc-live-scene" in page
+    assert 'class="wbmpc-static-scene" loading="lazy" src="data:text/html;base64,' in page
+    assert len(viewer.notebook_view(snapshot=False).data) < 1000
+
+
+def test_a_closed_viewer_says_so(robot, plan):
+    try:
+        closed = Viewer(robot)
+    except ViewerUnavailableError as exc:
+        pytest.skip(f"meshcat's zmq server cannot start on this machine: {exc}")
+    closed.close()
+    closed.close()  # twice is fine
+    assert closed.closed
+    for call in (lambda: closed.show_plan(plan), lambda: closed.display(robot.q_nominal), closed.static_html):
+        with pytest.raises(ViewerUnavailableError, match=r"closed \(Viewer.close\(\)"):
+            call()
+
+
+# --- the re-solve panel -----------------------------------------------------------------------------------
+class _FakeMPC:
+    """Solves instantly: a fake plan whose base velocity is the commanded one."""
+
+    def __init__(self, robot):
+        from types import SimpleNamespace
+
+        self.robot, self.config, self.resets, self.calls = robot, SimpleNamespace(Q=None, R=None), 0, []
+
+    def reset(self):
+        self.resets += 1
+
+    def solve(self, q, v, t, commands):
+        from types import SimpleNamespace
+
+        self.calls.append(commands)
+        plan = fake_plan(self.robot)
+        velocities = np.zeros((len(plan.q), self.robot.nv))
+        velocities[:, 0] = commands.base_linear_velocity[0]
+        return SimpleNamespace(**vars(plan), v=velocities)
+
+
+def test_resolve_panel_solves_on_release_and_says_what_changed(robot):
+    from wbmpc.control.mpc import Commands, default_weights
+    from wbmpc.viz.widgets import ReSolvePanel
+
+    mpc = _FakeMPC(robot)
+    panel = ReSolvePanel(
+        mpc, robot, Commands(base_linear_velocity=np.array([0.2, 0.0, 0.0])), default_weights(robot)
+    )
+    assert panel.sliders["speed"].value == pytest.approx(0.2) and not panel.sliders["speed"].continuous_update
+    panel.resolve(cold=True)
+    assert panel.solves == 1 and mpc.resets == 1 and panel.plot.value[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "No 3-D view" in panel.status.value
+    panel.sliders["speed"].value = 0.35  # a release: no event loop here, so it solves at once, warm
+    assert panel.solves == 2 and mpc.resets == 1
+    assert mpc.calls[-1].base_linear_velocity[0] == pytest.approx(0.35)
+    assert "v_x: 0.2 → 0.35 m/s" in panel.status.value and "warm start" in panel.status.value
+    panel.sliders["q_height"].value = 10.0**4
+    assert mpc.config.Q[2] == pytest.approx(1e4) and "Q height" in panel.status.value
+
+
+def test_resolve_panel_says_why_the_3d_view_did_not_follow(robot):
+    from wbmpc.control.mpc import Commands, default_weights
+    from wbmpc.viz.widgets import ReSolvePanel
+
+    class Closed:
+        def show_plan(self, plan):
+            raise ViewerUnavailableError("this viewer was closed (Viewer.close() stopped its meshcat server)")
+
+    panel = ReSolvePanel(_FakeMPC(robot), robot, Commands(), default_weights(robot), viewer=Closed())
+    panel.resolve()
+    assert "3-D view not updated" in panel.status.value and "Viewer.close()" in panel.status.value
+
+
+# --- known-harmless native output ---------------------------------------------------------------------------
+def test_line_filter_drops_only_the_known_harmless_lines():
+    from wbmpc.viz.quiet import LineFilter
+
+    f = LineFilter()
+    header = b"b3Warning[examples/Importers/ImportURDFDemo/BulletUrdfImporter.cpp,467]:\n"
+    base = b"Bad inertia tensor properties, setting inertia to zero for link: base\n"
+    trunk = b"Bad inertia tensor properties, setting inertia to zero for link: trunk\n"
+    assert f.feed(b"pybullet build time: Jan 29 2025 23:17:20\n") == []
+    assert f.feed(header) == [] and f.feed(base) == []
+    assert f.feed(header) == [] and f.feed(trunk) == [header, trunk]  # another link: kept
+    assert f.feed(header) == [] and f.feed(b"some other warning\n") == [header, b"some other warning\n"]
+    assert f.feed(b"ordinary line\n") == [b"ordinary line\n"]
+    assert f.feed(header) == [] and f.flush() == [header]
+    assert f.dropped == 3
+
+
+def test_quiet_known_native_output_in_a_child_process():
+    import subprocess
+    import sys
+
+    code = (
+        "import os\n"
+        "from wbmpc.viz.quiet import quiet_known_native_output\n"
+        "quiet_known_native_output()\n"
+        "os.write(2, b'pybullet build time: now\\n')\n"
+        "os.write(1, b'b3Warning[x.cpp,1]:\\n')\n"
+        "os.write(1, b'Bad inertia tensor properties, setting inertia to zero for link: base\\n')\n"
+        "os.write(2, b'a real warning\\n')\n"
+        "os.write(1, b'kept\\n')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=60, check=True)
+    assert done.stdout == b"kept\n"
+    assert done.stderr == b"a real warning\n"

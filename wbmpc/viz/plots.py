@@ -133,7 +133,8 @@ def plot_closed_loop(
     if base_velocity_command is not None:
         ax_v.axhline(base_velocity_command, color=LIMIT_COLOR, ls="--", label="command")
     ax_v.set_ylabel("forward velocity [m/s]")
-    ax_v.legend(**OUTSIDE_LEGEND)
+    if ax_v.get_lines():
+        ax_v.legend(**OUTSIDE_LEGEND)
 
     ee, ref = np.asarray(log["ee_position"], dtype=float), np.asarray(log["ee_reference"], dtype=float)
     for axis, name, color in ((0, "x", EE_COLOR), (2, "z", "#17becf")):
@@ -290,7 +291,8 @@ def plot_plan(plan, robot: Robot, commands=None) -> Figure:
                 command[1], color=LIMIT_COLOR, ls=":", lw=1.2, label=f"lateral command {command[1]:g} m/s"
             )
     ax_v.set_ylabel("base velocity [m/s]\n(heading frame)")
-    ax_v.legend(**OUTSIDE_LEGEND)
+    if ax_v.get_lines():
+        ax_v.legend(**OUTSIDE_LEGEND)
 
     if robot.has_arm:
         model, data = robot.model, robot.model.createData()

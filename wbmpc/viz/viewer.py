@@ -143,7 +143,7 @@ class Viewer:
                 f'<iframe class="wbmpc-static-scene" loading="lazy" src="data:text/html;base64,{page}" '
                 f'width="100%" height="{height}" style="border: 0"></iframe></details>'
             )
-        return HTML("".join(parts))
+        return HTML(f'<div class="wbmpc-scene">{"".join(parts)}</div>')
 
     def static_html(self) -> str:
         """The current scene (with its animation, if any) as a self-contained HTML page."""

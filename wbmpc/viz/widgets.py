@@ -186,6 +186,13 @@ class ReSolvePanel:
         Q, R = self.weights()
         self.mpc.config.Q, self.mpc.config.R = Q, R
         commands = self.commands()
+        # Warm only from this panel's own last plan: after anything else (a closed loop at another time, a
+        # failed solve) the MPC's previous plan is no guess for a solve from the standing pose at t = 0.
+        own = self.plan is not None and getattr(self.mpc, "previous", self.plan) is self.plan
+        if not cold and not own:
+            cold, why = True, " (the MPC's last plan was not this panel's)"
+        else:
+            why = ""
         if cold:
             self.mpc.reset()
         try:
@@ -202,7 +209,7 @@ class ReSolvePanel:
         buffer = io.BytesIO()
         fig.savefig(buffer, format="png", dpi=80)
         self.plot.value = buffer.getvalue()
-        start = "cold start" if cold else "warm start from the last plan"
+        start = f"cold start{why}" if cold else "warm start from the last plan"
         changed = "; ".join(changes) if changes else "nothing (same sliders)"
         converged = "converged" if plan.success else "<b style='color:#b00'>NOT converged</b>"
         self.status.value = (
