@@ -138,3 +138,28 @@ def test_robustness_notebook_quotes_its_tables():
     forward = [r for r in sweeps.committed_table("robustness") if r.get("direction") == "forward"]
     assert "not in this grid" not in text, "the forward case is in the table (and in its report)"
     assert forward and all(r["status"] == "fell" for r in forward), "the text says the forward case falls"
+
+
+def test_hardware_notebook_quotes_its_com_identification():
+    """Notebook 05's text on the identified base CoM quotes what its cell computes from the committed bag."""
+    import json
+
+    import numpy as np
+
+    from wbmpc import analysis
+    from wbmpc.io.rosbag import read_bag
+    from wbmpc.model.robot import load_b1_z1
+
+    text = " ".join(_markdown(REPO_ROOT / "notebooks" / "05_hardware_log_analysis.ipynb").split())
+    robot = load_b1_z1()
+    bag = REPO_ROOT / "data" / "hardware" / "emulated_b1_stand_trot"
+    how = json.loads((REPO_ROOT / "data" / "hardware" / "emulated_b1_stand_trot.json").read_text())
+    log = read_bag(bag)
+    ident = analysis.identify_com_offset(log, robot, mask=analysis.standing_mask(log, t_min=0.5, t_max=2.0))
+    emulated = np.array(how["emulated_robot"]["base_com_offset"])
+    error_mm = 1e3 * np.linalg.norm(ident.offset[:2] - emulated[:2])
+    assert f"{-100 * ident.offset[0]:.2f} cm behind the model's" in text
+    assert f"{error_mm:.1f} mm from the emulated {-100 * emulated[0]:g} cm" in text
+    assert f"CoM: {-100 * ident.com_shift[0]:.1f} cm back" in text
+    assert f"the rear feet carry {100 * ident.summary()['rear_share']:.0f} % of the weight" in text
+    assert f"$m_b$ = {ident.link_mass:g} kg of $M$ = {robot.mass:.1f} kg" in text
