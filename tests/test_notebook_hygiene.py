@@ -163,3 +163,14 @@ def test_hardware_notebook_quotes_its_com_identification():
     assert f"CoM: {-100 * ident.com_shift[0]:.1f} cm back" in text
     assert f"the rear feet carry {100 * ident.summary()['rear_share']:.0f} % of the weight" in text
     assert f"$m_b$ = {ident.link_mass:g} kg of $M$ = {robot.mass:.1f} kg" in text
+
+
+def test_quickstart_text_leaves_the_problem_sizes_to_its_cells():
+    """Notebook 00 prints the problem's sizes; its text must not quote its own (they went stale before)."""
+    text = " ".join(_markdown(REPO_ROOT / "notebooks" / "00_quickstart.ipynb").split())
+    stale = [
+        m.group(0)
+        for pattern in (r"\d[\d,]* decision variables", r"n_[xug] = \d{2,}", r"\*\*\d+ nodes\*\*")
+        for m in re.finditer(pattern, text)
+    ]
+    assert not stale, f"sizes quoted in 00's markdown (print them from a cell instead): {stale}"
