@@ -258,6 +258,8 @@ def test_run_all_then_slider_resolves_and_redraws(lab, browser):
     slider = page.locator(".widget-slider", has_text="v_x").first
     slider.scroll_into_view_if_needed(timeout=30_000)
     handle = slider.locator(".noUi-handle").first
+    value = _readout(slider)
+    handle.hover(timeout=30_000)  # scrolled into view and stable: the box below is where the handle is
     box = handle.bounding_box(timeout=30_000)
     assert box is not None, "the v_x slider's handle is not on screen"
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
@@ -265,6 +267,10 @@ def test_run_all_then_slider_resolves_and_redraws(lab, browser):
     page.mouse.down()
     page.mouse.move(x + 40, y, steps=5)
     page.mouse.up()
+    if _readout(slider) == value:  # the drag missed (a layout shift): the keyboard, released at once
+        handle.focus()
+        page.keyboard.press("ArrowRight")
+    assert _readout(slider) != value, f"the v_x slider did not move from {value}"
 
     status_line = page.locator(".wbmpc-resolve-status").first
     _wait_for(

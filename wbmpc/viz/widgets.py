@@ -182,6 +182,9 @@ class ReSolvePanel:
         Returns:
             The new plan (:class:`wbmpc.control.config.MPCSolution`).
         """
+        if self._pending is not None:  # this solve already has the sliders' values
+            self._pending.cancel()
+            self._pending = None
         changes = self.changes()
         Q, R = self.weights()
         self.mpc.config.Q, self.mpc.config.R = Q, R
