@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+from wbmpc import checks
 from wbmpc.quick import pick
 from wbmpc.studies import cli_checks
 from wbmpc.studies.cli_checks import MAX_NODES
@@ -181,6 +182,10 @@ def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -
     cli_checks.user_robot(parser, args)
     if not abs(args.speed) < float("inf"):
         parser.error(f"--speed must be finite, got {args.speed}")
+    try:  # a speed no robot walks at is refused here, before any model is built
+        checks.command_velocity("--speed", linear=(args.speed, 0.0, 0.0))
+    except ValueError as exc:
+        parser.error(str(exc))
     try:  # a bad output folder fails now, not after the simulation
         args.output.mkdir(parents=True, exist_ok=True)
         probe = args.output / ".write-test"
@@ -207,6 +212,7 @@ def main(argv: list[str] | None = None) -> dict:
             default_duration = gait.duration
         else:
             gait, default_duration = make_gait(args.gait, args.period), 10.0
+        checks.gait_velocities("--gait", gait)
     except ValueError as exc:
         parser.error(f"--gait {args.gait!r}: {exc}")
     if args.urdf is not None:
