@@ -53,7 +53,7 @@ STATUSES = tuple(
     step_computation_error fatrop_unknown fatrop_failed infeasible search_direction_too_small diverging
     user_stop feasible_point restoration_failed max_time_exceeded too_few_degrees_of_freedom invalid_problem
     invalid_option invalid_number solver_exception insufficient_memory internal_error nan_in_evaluation
-    evaluation_error non_finite_solution""".split()
+    evaluation_error non_finite_solution absurd_measurement""".split()
 )
 
 SlotDescription = namedtuple("SlotDescription", "name layout")
