@@ -171,3 +171,34 @@ def test_base_rpy_and_heading_velocity(robot):
     world = R @ v[:3]
     expected = pin.rpy.rpyToMatrix(0.0, 0.0, np.pi / 2).T @ world
     np.testing.assert_allclose(heading_velocity(q[None], v[None])[0], expected, atol=1e-12)
+
+
+# --- the robustness heatmaps of notebook 06 ---------------------------------------------------------------
+def test_heatmap_values_read_on_every_cell():
+    from wbmpc.studies import sweeps
+
+    rows = [{"m": m, "p": p, "ratio": v} for m, p, v in ((0.0, 0.0, 1.0), (0.0, 0.5, 0.0), (0.4, 0.0, 0.5))]
+    fig = sweeps.heatmap(rows, "ratio", x="p", y="m", cmap="magma", vmin=0.0, vmax=1.0, fontsize=9)
+    colours = {text.get_text(): text.get_color() for text in fig.axes[0].texts}
+    assert colours["1"] == "black" and colours["0"] == "white"  # pale yellow and black cells of magma
+    assert {text.get_fontsize() for text in fig.axes[0].texts} == {9}
+
+
+def test_robustness_figures_leave_single_cells_out(tmp_path):
+    from wbmpc.studies import sweeps
+
+    rows = [
+        {"magnitude": m, "phase": p, "direction": "lateral", "status": "ok", "calf_torque_ratio": 0.8}
+        for m in (0.4, 0.8)
+        for p in (0.0, 0.5)
+    ] + [{"magnitude": 0.8, "phase": 0.0, "direction": "forward", "status": "fell", "calf_torque_ratio": 1.0}]
+    assert [p.name for p in sweeps.robustness_figures(rows, tmp_path)] == ["robustness_lateral.png"]
+
+
+def test_committed_sweep_tables_are_found_from_anywhere(tmp_path, monkeypatch):
+    from wbmpc.studies import sweeps
+
+    monkeypatch.chdir(tmp_path)
+    assert sweeps.committed_table("robustness_grid")
+    with pytest.raises(FileNotFoundError, match=r"data/results/sweeps/no_such_table\.csv is missing"):
+        sweeps.committed_table("no_such_table")
