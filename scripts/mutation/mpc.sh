@@ -4,8 +4,8 @@
 # tests of test_mpc, the static hold, the bad inputs, tests/test_mpc_mutation_gaps.py. Left out by -k, seconds
 # to minutes per mutant: the closed-loop trots, the PyBullet run, the IPOPT comparison, the 15-node standing
 # problem (its module fixture alone takes 5 s), the node-0 comparisons and tests/test_formulations.py.
-# All 1378 mutants take hours on one core: docs/mutation/builder_mpc.md runs solve, shifted_guess and
-# cold_guess (and says which other functions were run).
+# All 1368 mutants take hours on one core: run them by function name (docs/mutation/builder_mpc.md: solve,
+# shifted_guess; builder_build_mpc_rest.md: hold_plan, pose_at_height, part of _run_solver; what was not run).
 module="wbmpc/control/mpc.py"
 tests=(tests/test_bad_inputs.py tests/test_static_hold.py tests/test_friction_cone.py tests/test_mpc.py
     tests/test_mpc_mutation_gaps.py)
