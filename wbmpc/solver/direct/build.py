@@ -1,0 +1,231 @@
+"""Generate, compile and cache the direct Fatrop driver of an OCP: one shared library per problem and flags.
+
+The library holds the per-stage functions in Fatrop's layout (:mod:`wbmpc.solver.direct.problem`), one C
+file per stage type compiled in parallel, a table that hands them to the driver, and the C++ driver
+``wbmpc/solver/c/fatrop_direct.cpp`` compiled against the casadi wheel's Fatrop headers and linked against
+its ``libfatrop.so`` and ``libblasfeo.so`` (no source build of a dependency). Cached like
+:func:`wbmpc.solver.codegen.build`: the key is the codegen key of the OCP (robot model, settings, compiler,
+casadi, wbmpc sources) plus the driver's own sources and flags; a file lock serialises builds of one key.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+
+from wbmpc.ocp import OCP
+from wbmpc.solver import codegen
+from wbmpc.solver.direct.problem import (
+    FUNCTIONS,
+    KINDS,
+    stage_layouts,
+    stage_parameters_function,
+    stage_problem,
+)
+
+DIRECT_VERSION = 1  # bump when the generated functions or the driver's ABI change meaning
+DRIVER_SOURCE = Path(__file__).resolve().parents[1] / "c" / "fatrop_direct.cpp"
+#: gcc flags of the generated stage functions (as the plugin path's library) and of the C++ driver.
+DEFAULT_FLAGS = codegen.DEFAULT_FLAGS
+DRIVER_FLAGS = ("-O2", "-std=c++17")
+LIBRARY_NAME = "libwbmpc_direct.so"
+_CODEGEN_OPTIONS = {"with_header": False, "casadi_int": "long long int", "casadi_real": "double"}
+
+
+@dataclass
+class DirectLibrary:
+    """A compiled direct-driver library in the cache, with its build record."""
+
+    library: Path
+    key: str
+    build_s: float
+    rebuilt: bool
+
+
+def casadi_dir() -> Path:
+    """Folder of the casadi wheel (``libfatrop.so``, ``libblasfeo.so``; headers under ``include``)."""
+    return Path(ca.__file__).resolve().parent
+
+
+def cache_key(ocp: OCP, flags: tuple[str, ...]) -> tuple[str, dict]:
+    """Key of the direct library of ``ocp``: the codegen key plus this package's sources and the driver."""
+    key, description = codegen.cache_key(ocp, tuple(flags))
+    digest = hashlib.sha256()
+    for path in (
+        Path(__file__).parent / "problem.py",
+        Path(__file__),
+        DRIVER_SOURCE,
+    ):  # what the library holds
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    description = {
+        **description,
+        "direct_version": DIRECT_VERSION,
+        "driver_flags": list(DRIVER_FLAGS),
+        "direct_sources_sha256": digest.hexdigest(),
+        "codegen_key": key,
+    }
+    return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16], description
+
+
+def build(
+    ocp: OCP,
+    flags: tuple[str, ...] = DEFAULT_FLAGS,
+    directory: Path | None = None,
+    progress: bool = True,
+    force: bool = False,
+) -> DirectLibrary:
+    """Generate and compile the direct driver of ``ocp``, or reuse the cached library.
+
+    Args:
+        ocp: The problem.
+        flags: gcc flags of the generated stage functions (part of the key).
+        directory: Cache folder (default :func:`wbmpc.solver.codegen.cache_dir`).
+        progress: Print what happens.
+        force: Rebuild even if a valid library is cached.
+
+    Raises:
+        FileNotFoundError: the casadi wheel has no Fatrop headers or libraries.
+        RuntimeError: a compiler error (the message holds its tail).
+    """
+    lib_dir = casadi_dir()
+    for needed in (lib_dir / "include" / "fatrop" / "fatrop.hpp", lib_dir / "libfatrop.so"):
+        if not needed.exists():
+            raise FileNotFoundError(
+                f"the casadi wheel has no {needed.name} at {needed}: the direct driver needs it"
+            )
+    if shutil.which("g++") is None or shutil.which("gcc") is None:
+        raise FileNotFoundError("the direct Fatrop driver needs gcc and g++ on PATH")
+    key, description = cache_key(ocp, tuple(flags))
+    folder = Path(directory or codegen.cache_dir()) / f"direct-{key}"
+    folder.mkdir(parents=True, exist_ok=True)
+    library, record = folder / LIBRARY_NAME, folder / "build.json"
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process dies
+        if not force and library.is_file() and record.is_file():
+            info = json.loads(record.read_text())
+            if info.get("library_sha256") == _sha256(library):
+                return DirectLibrary(library, key, info["build_s"], False)
+        start = time.perf_counter()
+        if progress:
+            print(f"[wbmpc.solver.direct] generating the direct Fatrop driver ({key}) ...", flush=True)
+        with tempfile.TemporaryDirectory(prefix=".build-", dir=folder) as tmp:
+            tmp = Path(tmp)
+            sources = _generate(ocp, tmp)
+            objects = _compile_all(sources, tmp, tuple(flags), lib_dir)
+            _run(
+                [
+                    "g++",
+                    "-shared",
+                    *[str(o) for o in objects],
+                    "-o",
+                    str(tmp / LIBRARY_NAME),
+                    f"-L{lib_dir}",
+                    "-lfatrop",
+                    "-lblasfeo",
+                    f"-Wl,-rpath,{lib_dir}",
+                ],
+                tmp,
+            )
+            os.replace(tmp / LIBRARY_NAME, library)  # atomic: readers never see a half-written library
+        build_s = time.perf_counter() - start
+        record.write_text(
+            json.dumps(
+                {**description, "key": key, "build_s": build_s, "library_sha256": _sha256(library)}, indent=2
+            )
+        )
+        if progress:
+            print(f"[wbmpc.solver.direct] built {library} in {build_s:.0f} s", flush=True)
+        return DirectLibrary(library, key, build_s, True)
+
+
+def _generate(ocp: OCP, folder: Path) -> list[Path]:
+    """Write one C file per stage type, the stage-parameter function and the table; their paths."""
+    layouts = {}
+    for layout in stage_layouts(ocp):
+        layouts.setdefault(layout.kind, layout)
+    sources, table = [], {}
+    for index, kind in enumerate(KINDS):
+        if kind not in layouts:
+            continue
+        functions = stage_problem(ocp, layouts[kind])
+        generator = ca.CodeGenerator(f"wbmpc_direct_{kind}.c", _CODEGEN_OPTIONS)
+        for which in FUNCTIONS:
+            generator.add(functions[which])
+            table[(index, FUNCTIONS.index(which))] = functions[which].name()
+        generator.generate(str(folder) + os.sep)
+        sources.append(folder / f"wbmpc_direct_{kind}.c")
+    generator = ca.CodeGenerator("wbmpc_direct_stage_params.c", _CODEGEN_OPTIONS)
+    stage_params = stage_parameters_function(ocp)
+    generator.add(stage_params)
+    generator.generate(str(folder) + os.sep)
+    sources.append(folder / "wbmpc_direct_stage_params.c")
+    names = sorted(set(table.values())) + [stage_params.name()]
+    lines = [
+        "/* Generated by wbmpc.solver.direct.build: the stage functions by (kind, which). */",
+        "typedef long long int casadi_int;",
+        "typedef int (*eval_fn)(const double**, double**, casadi_int*, double*, int);",
+        "typedef int (*work_fn)(casadi_int*, casadi_int*, casadi_int*, casadi_int*);",
+    ]
+    for name in names:
+        lines.append(f"int {name}(const double**, double**, casadi_int*, double*, int);")
+        lines.append(f"int {name}_work(casadi_int*, casadi_int*, casadi_int*, casadi_int*);")
+    lines.append("int wbmpc_direct_function(int kind, int which, eval_fn* eval, work_fn* work) {")
+    sp = stage_params.name()
+    lines.append(f"  if (which == -1) {{ *eval = {sp}; *work = {sp}_work; return 0; }}")
+    for (kind, which), name in sorted(table.items()):
+        lines.append(
+            f"  if (kind == {kind} && which == {which}) {{ *eval = {name}; *work = {name}_work; return 0; }}"
+        )
+    # A stage type the horizon does not use (e.g. no plain node) takes another's: never called.
+    fallback = next(iter(sorted(table.items())))[1]
+    lines.append(f"  *eval = {fallback}; *work = {fallback}_work; return 0;")
+    lines.append("}")
+    (folder / "wbmpc_direct_table.c").write_text("\n".join(lines) + "\n")
+    sources.append(folder / "wbmpc_direct_table.c")
+    return sources
+
+
+def _compile_all(sources: list[Path], folder: Path, flags: tuple[str, ...], lib_dir: Path) -> list[Path]:
+    """Compile the generated C (``flags``) and the driver in parallel, one job per core."""
+    jobs = [["gcc", *flags, "-fPIC", "-c", str(src), "-o", str(src.with_suffix(".o"))] for src in sources]
+    driver = folder / "fatrop_direct.o"
+    include = lib_dir / "include"
+    jobs.append(
+        [
+            "g++",
+            *DRIVER_FLAGS,
+            "-fPIC",
+            "-c",
+            str(DRIVER_SOURCE),
+            f"-I{include}",
+            f"-I{include / 'blasfeo' / 'include'}",
+            "-o",
+            str(driver),
+        ]
+    )
+    # The largest files first, so that the last job to start is a short one.
+    jobs.sort(key=lambda job: -Path(job[-3] if job[0] == "gcc" else DRIVER_SOURCE).stat().st_size)
+    with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
+        list(pool.map(lambda job: _run(job, folder), jobs))
+    return [src.with_suffix(".o") for src in sources] + [driver]
+
+
+def _run(command: list[str], cwd: Path) -> None:
+    result = subprocess.run(command, cwd=cwd, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeError(f"{' '.join(command[:4])} ... failed:\n{result.stderr[-3000:]}")
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
