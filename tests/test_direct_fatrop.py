@@ -155,3 +155,48 @@ def test_iteration_cap_is_a_named_failure(setup):
     finally:
         direct.set_option("max_iter", mpc.solver_settings.max_iter)
     assert not r.success and r.status == "max_iter_exceeded" and r.reason
+
+
+def test_behind_the_mpc_same_statuses_and_plans(setup):
+    """SolverSettings(direct=True): the MPC's own solve() on the recorded observations of the trot."""
+    robot, plugin_ticks = setup["mpc"].robot, [t for t in setup["trot"] if t.w is not None]
+    mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=15), MPCConfig(), SolverSettings(compiled=True, direct=True)
+    )
+    mpc.verbose = False
+    direct_iterations = plugin_iterations = 0
+    for i, tick in enumerate(plugin_ticks[:30]):
+        plan = mpc.solve(tick.q_hat, tick.v_hat, tick.t, tick.commands)
+        assert plan.success and plan.status == tick.status == "success" and not plan.fallback
+        assert np.max(np.abs(plan.w - tick.w)) <= 10 * mpc.solver_settings.tol
+        if i > 0:  # after the first (cold) tick both are warm started
+            direct_iterations += plan.iterations
+            plugin_iterations += tick.iterations
+    assert direct_iterations <= plugin_iterations
+    assert mpc.stats["failures"] == 0 and mpc.stats["exceptions"] == 0
+    assert mpc._solver(cold=False).stats()["fatrop"]["warm_duals"]
+
+
+def test_direct_settings_are_checked():
+    with pytest.raises(ValueError, match="direct needs solver='fatrop'"):
+        SolverSettings(solver="ipopt", direct=True)
+    with pytest.raises(ValueError, match="True or False"):
+        SolverSettings(direct="yes")
+
+
+def test_unavailable_driver_falls_back_to_the_plugin(setup, monkeypatch):
+    from wbmpc.solver.direct import adapter
+
+    def unavailable(*args, **kwargs):
+        raise OSError("g++ not found")
+
+    monkeypatch.setattr(adapter, "DirectFatrop", unavailable)
+    mpc = WholeBodyMPC(
+        setup["mpc"].robot, OCPSettings(n_nodes=15), MPCConfig(), SolverSettings(compiled=True, direct=True)
+    )
+    mpc.verbose = False
+    with pytest.warns(UserWarning, match="unavailable"):
+        solver = mpc.make_solver("fallback", cold=True)
+        plan = mpc.solve(mpc.robot.q_nominal, np.zeros(mpc.robot.nv), 0.0)
+    assert not isinstance(solver, adapter.DirectNlpsol)
+    assert plan.success and plan.status == "success"

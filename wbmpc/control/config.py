@@ -214,10 +214,13 @@ class SolverSettings:
         cold_max_iter: Iteration cap of a cold start (the first solve).
         retry_max_iter: Iteration cap of the cold retry after a failed warm solve (``MPCConfig.cold_retry``).
         mu_init_warm, mu_init_cold: Initial barrier parameter of warm and cold starts.
+        direct: Solve with the direct primal-dual warm-started Fatrop driver (:mod:`wbmpc.solver.direct`,
+            compiled at set-up and cached; ``compile_flags`` are its stage functions' flags) instead of the
+            casadi plugin, which stays its fallback. Fatrop only.
 
     Raises:
-        ValueError: On an unknown solver, ``compiled`` without Fatrop, a non-positive tolerance or barrier
-            parameter, an iteration cap below 1, or flags that are not strings.
+        ValueError: On an unknown solver, ``compiled`` or ``direct`` without Fatrop, a non-positive tolerance
+            or barrier parameter, an iteration cap below 1, or flags that are not strings.
     """
 
     solver: str = "fatrop"
@@ -229,6 +232,7 @@ class SolverSettings:
     retry_max_iter: int = 100
     mu_init_warm: float = WARM_MU_INIT
     mu_init_cold: float = 1e-1
+    direct: bool = False
 
     def __post_init__(self):
         for name in ("tol", "mu_init_warm", "mu_init_cold"):
@@ -247,6 +251,10 @@ class SolverSettings:
             raise ValueError(
                 "SolverSettings.compiled needs solver='fatrop' (the library holds Fatrop's functions)"
             )
+        if not isinstance(self.direct, bool | np.bool_):
+            raise ValueError(f"SolverSettings.direct must be True or False, got {self.direct!r}")
+        if self.direct and self.solver != "fatrop":
+            raise ValueError("SolverSettings.direct needs solver='fatrop' (it is a Fatrop driver)")
         checks.names("SolverSettings.compile_flags", self.compile_flags, unique=False)
         object.__setattr__(self, "compile_flags", tuple(self.compile_flags))
 

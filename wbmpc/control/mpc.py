@@ -154,8 +154,13 @@ class WholeBodyMPC:
 
     def make_solver(self, name: str, cold: bool, max_iter: int | None = None) -> ca.Function:
         """A new ``casadi.nlpsol`` for this problem with the cold- or warm-start options of the settings
-        (``max_iter`` overrides their iteration cap); compiled (cached) with ``SolverSettings.compiled``."""
+        (``max_iter`` overrides their iteration cap); compiled (cached) with ``SolverSettings.compiled``; the
+        direct driver's stand-in (:class:`wbmpc.solver.direct.adapter.DirectNlpsol`) with ``direct``."""
         cfg = self.solver_settings
+        if cfg.direct:  # the direct Fatrop driver, called like an nlpsol; the plugin path is its fallback
+            from wbmpc.solver.direct.adapter import DirectNlpsol
+
+            return DirectNlpsol.for_mpc(self, name, cold, max_iter)
         library = None
         if cfg.compiled:
             if self.compiled_nlp is None:

@@ -39,7 +39,7 @@ class RecordedTick:
         t: Time [s]; q_hat, v_hat: measured state; commands: the tick's commands.
         p: Parameter vector; x0: the MPC's initial primal guess (shifted previous plan, or the cold guess).
         cold: Whether the MPC started this tick cold.
-        status, iterations: The plugin path's result in the loop.
+        status, iterations, w: The plugin path's result in the loop (``w``: its primal solution, or None).
     """
 
     t: float
@@ -51,39 +51,47 @@ class RecordedTick:
     cold: bool
     status: str
     iterations: int
+    w: np.ndarray | None = None
 
 
 def record_ticks(mpc, duration: float = 1.0, progress: bool = False) -> list[RecordedTick]:
-    """Run ``mpc`` in the default closed loop (trot, rigid plant) for ``duration`` [s]; record every tick.
+    """Run ``mpc`` in the default closed loop (trot, rigid plant) for ``duration`` [s]; record every tick
+    (the arguments of each ``mpc.solve`` call, the solver's inputs and the plan).
 
     Raises:
         ValueError: ``duration`` <= 0.
     """
     from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
-    from wbmpc.sim.observers import LoopObserver
 
     if not duration > 0:
         raise ValueError(f"duration must be > 0 s, got {duration!r}")
     ticks: list[RecordedTick] = []
+    solve = mpc.solve
 
-    class Recorder(LoopObserver):
-        def on_solve(self, loop, plan, apply_t):
-            inputs = mpc.last_inputs
-            ticks.append(
-                RecordedTick(
-                    t=float(loop.t),
-                    q_hat=np.array(loop.q_meas, float),
-                    v_hat=np.array(loop.v_meas, float),
-                    commands=loop.commands,
-                    p=np.array(inputs["p"], float).ravel(),
-                    x0=np.array(inputs["x0"], float).ravel(),
-                    cold="lam_g0" not in inputs,
-                    status=plan.status,
-                    iterations=int(plan.iterations),
-                )
+    def recording_solve(q_hat, v_hat, t=0.0, commands=None, warm_start=True):
+        plan = solve(q_hat, v_hat, t, commands, warm_start)
+        inputs = mpc.last_inputs
+        ticks.append(
+            RecordedTick(
+                t=float(t),
+                q_hat=np.array(q_hat, float),
+                v_hat=np.array(v_hat, float),
+                commands=commands,
+                p=np.array(inputs["p"], float).ravel(),
+                x0=np.array(inputs["x0"], float).ravel(),
+                cold="lam_g0" not in inputs,
+                status=plan.status,
+                iterations=int(plan.iterations),
+                w=None if plan.w is None or plan.fallback else np.array(plan.w, float),
             )
+        )
+        return plan
 
-    run_closed_loop(mpc, ClosedLoopConfig(duration=duration), progress=progress, observers=[Recorder()])
+    mpc.solve = recording_solve  # on this instance only, for the run
+    try:
+        run_closed_loop(mpc, ClosedLoopConfig(duration=duration), progress=progress)
+    finally:
+        del mpc.solve
     return ticks
 
 

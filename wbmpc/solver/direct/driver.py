@@ -164,6 +164,8 @@ class DirectFatrop:
         self._zl = np.zeros(self.n_ineq)
         self._zu = np.zeros(self.n_ineq)
         self._report = np.zeros(N_REPORT)
+        #: The last converged result an owner keeps for its next warm start (wbmpc.solver.direct.adapter).
+        self.last: DirectResult | None = None
 
     def _declare(self) -> None:
         lib = self._lib
