@@ -5,7 +5,8 @@
 profile's noisy sensors (:class:`wbmpc.sim.hardware.SyntheticSensors`), fed through the estimator in the
 loop (:class:`wbmpc.sim.hardware.EstimatedState`, its contact lookups included) and the bare
 :class:`wbmpc.estimation.StateEstimator`; and 200 steps of the emulated robot's plant (PyBullet behind the
-motors and the motor drives) under random torques. The estimates must match to 1e-12, the plant bit for bit.
+motors and the motor drives) under random torques. The estimates and the plant must match to 1e-12 (the
+plant bit for bit on the CPU that wrote the reference), counts exactly.
 
 Regenerate the reference (only when the algorithm changes on purpose)::
 
@@ -193,12 +194,23 @@ def test_estimates_match_the_reference(outputs, reference, prefix):
         assert diff <= 1e-12, f"{key}: max |difference| {diff:.3g}"
 
 
-def test_plant_steps_are_bit_identical_to_the_reference(outputs, reference):
+def test_plant_steps_match_the_reference_to_the_last_bits(outputs, reference):
+    """Counts and flags equal; floating-point outputs equal up to a few units in the last place.
+
+    Bit identity held on the CPU that wrote the reference (AVX2) but not on an AVX-512 one, where numpy's
+    vectorised math rounds some results differently (1.1e-16 on the 100-step states): the tolerance is
+    that rounding, ten thousand times below any change of the plant's physics.
+    """
     keys = [k for k in reference if k[:2] in ("e_", "f_")]
     assert len(keys) == 12
     for key in keys:
         assert outputs[key].dtype == reference[key].dtype, key
-        assert np.array_equal(outputs[key], reference[key]), f"{key} differs from the reference"
+        assert outputs[key].shape == reference[key].shape, key
+        if np.issubdtype(reference[key].dtype, np.floating):
+            diff = np.max(np.abs(outputs[key] - reference[key]), initial=0.0)
+            assert diff <= 1e-12, f"{key}: max |difference| {diff:.3g}"
+        else:
+            assert np.array_equal(outputs[key], reference[key]), f"{key} differs from the reference"
 
 
 if __name__ == "__main__":
