@@ -1,4 +1,9 @@
-"""Robustness grid on the sweep engine (quick mode: in-process solver, 15 nodes, PyBullet), lift-off push.
+"""Robustness grid on the sweep engine (quick mode's short runs with the compiled solver, 15 nodes,
+PyBullet), lift-off push.
+
+The closed-loop cases use the cached compiled library of the default problem (the one the suite builds once
+for every compiled test): in-process, the failed solves after a kick (each with its cold retry) took 2-3
+minutes per case.
 
 The kick at a lift-off leaves one diagonal pair on the ground for a whole swing: without the MPC's swing abort
 (``MPCConfig.kick_recovery``) a 0.8 m/s lateral kick there fell (every warm-started solve failed; full runs in
@@ -26,7 +31,13 @@ def table(tmp_path_factory):
     """A tiny grid in quick mode on a 1-worker cluster: no kick, and 0.8 m/s lateral at the lift-off."""
     path = tmp_path_factory.mktemp("robustness") / "robustness.csv"
     cases = sweeps.grid(
-        magnitude=[0.0, 0.8], direction=["lateral"], phase=[0.0], delay=[0.0], seed=[None], quick=[True]
+        magnitude=[0.0, 0.8],
+        direction=["lateral"],
+        phase=[0.0],
+        delay=[0.0],
+        seed=[None],
+        quick=[True],
+        compiled=[True],
     )
     run = sweeps.run_sweep(cases, sweeps.robustness_case, path, workers=1, progress=False)
     assert sum(run.counts.values()) == 2 and "error" not in run.counts, run.rows
@@ -212,7 +223,14 @@ def test_kick_at_a_later_lift_off_is_survived(direction):
     kick at any lift-off fell: every solve after it failed (the hand held still in the world while the base
     was pushed)."""
     row = sweeps.robustness_case(
-        {"magnitude": 0.8, "direction": direction, "phase": 0.5, "quick": True, "after": 1.0}
+        {
+            "magnitude": 0.8,
+            "direction": direction,
+            "phase": 0.5,
+            "quick": True,
+            "compiled": True,
+            "after": 1.0,
+        }
     )
     assert row["t_kick"] == pytest.approx(1.6) and row["peak_speed_along_kick"] > 0.6
     assert not row["fell"] and row["max_tilt_rad"] < 0.35, row
