@@ -10,10 +10,12 @@ rigid plant, the plugin path in the loop), each tick's parameters and shifted pr
 * ``direct, primal-dual warm``: the direct driver from the same primal guess with the duals and the barrier
   parameter of its previous tick's solution (no least-squares initialisation).
 
-Per solve and per whole tick (the MPC's ``solve()`` with each solver, parameters in, plan out) the mean and
-p95 times, iterations and the CPU go to ``data/bench/direct_fatrop.json``::
+Then per whole tick: two MPCs (``SolverSettings(direct=False)`` and ``direct=True``) each call ``solve()``
+(parameters in, plan out) on the recorded observations, alternating tick by tick, each with its own
+warm-start chain. Mean and p95 times per solve and per tick, iterations, the load average and the CPU go
+to ``data/bench/direct_fatrop.json``::
 
-    python -m wbmpc.studies.direct_fatrop --ticks 120 --rounds 2
+    python -m wbmpc.studies.direct_fatrop --rounds 2 --flags "-O1" --flags "-O3 -march=native"
 """
 
 from __future__ import annotations
@@ -116,15 +118,46 @@ def cpu_name() -> str:
     return "unknown"
 
 
+def riccati_flops(layouts) -> dict:
+    """Floating-point operations of one factorisation of Fatrop's Riccati recursion (its OCP
+    ``AugSystemSolver``, ``src/ocp/aug_system_solver.cpp`` of Fatrop 1.1.8), per stage and in total.
+
+    Per stage with ``n = nu + nx`` and ``m = n + 1`` (the gradient row), ``nx'`` the next state, ``ng`` path
+    equalities (all of rank ``r = min(ng, nu)``) and ``ni`` inequalities, counting a multiply-add as 2 and
+    the triangular updates as half of a full product: ``B^T P`` (``2 m nx'^2``) and its ``syrk``
+    (``n^2 nx'``), the inequality ``syrk`` (``n^2 ni``), the transposed LU of the equality rows
+    (``r^2 nu - r^3 / 3``), its ``trsm`` (``(m - r) r^2``), the elimination ``gemm`` and ``syrk``
+    (``2 (m - r) n r + (m - r)(n - r) r``), the Cholesky of the reduced input block
+    (``(nu - r)^3 / 3 + (nx + 1)(nu - r)^2``) and the Schur complement (``nx^2 (nu - r)``). The back and
+    forward substitutions are O(n^2) and left out. An estimate of the work, not of Fatrop's exact count.
+
+    Args:
+        layouts: :func:`wbmpc.solver.direct.problem.stage_layouts`.
+
+    Returns:
+        ``{"per_stage": [...], "total": ...}`` [FLOP].
+    """
+    per_stage = []
+    for i, s in enumerate(layouts):
+        nu, nx, ng, ni = s.nu, s.nx, s.eq_rows.size, s.ineq_rows.size
+        nxp1 = layouts[i + 1].nx if i + 1 < len(layouts) else 0
+        n, m = nu + nx, nu + nx + 1
+        r = min(ng, nu)
+        flops = 2 * m * nxp1**2 + n**2 * nxp1 + n**2 * ni
+        flops += r**2 * nu - r**3 / 3 + (m - r) * r**2 + 2 * (m - r) * n * r + (m - r) * (n - r) * r
+        flops += (nu - r) ** 3 / 3 + (nx + 1) * (nu - r) ** 2 + nx**2 * (nu - r)
+        per_stage.append(float(flops))
+    return {"per_stage": per_stage, "total": float(sum(per_stage))}
+
+
 def replay(mpc, direct, ticks: list[RecordedTick]) -> dict:
-    """Solve every tick with the plugin, the direct driver (primal warm) and the direct driver (primal-dual
-    warm from its previous tick), interleaved; per-variant times [ms], iterations, statuses, differences."""
+    """Solver calls on identical inputs, interleaved per tick: the plugin's ``nlpsol``, the direct driver
+    from the same start (primal warm, Fatrop's dual start) and the direct driver primal-dual warm started
+    from its previous tick; per variant times [ms], iterations, statuses, largest primal difference."""
     solver = mpc._solver(cold=False)
     cfg = mpc.solver_settings
-    out = {
-        name: {"solve_ms": [], "iterations": [], "status": []}
-        for name in ("plugin", "direct_primal", "direct_pd")
-    }
+    names = ("plugin", "direct_primal", "direct_pd")
+    out = {name: {"solve_ms": [], "iterations": [], "status": [], "profile": []} for name in names}
     max_diff = {"direct_primal": 0.0, "direct_pd": 0.0}
     previous = None
     for tick in ticks:
@@ -136,31 +169,74 @@ def replay(mpc, direct, ticks: list[RecordedTick]) -> dict:
         elapsed = time.perf_counter() - start
         stats = solver.stats()
         w_plugin = np.array(sol["x"]).ravel()
+        fatrop = stats.get("fatrop", {})
         out["plugin"]["solve_ms"].append(1e3 * elapsed)
         out["plugin"]["iterations"].append(int(stats["iter_count"]))
         out["plugin"]["status"].append("success" if stats["success"] else str(stats.get("return_status")))
-        r = direct.solve(tick.p, tick.x0, mu_init=cfg.mu_init_warm)
-        out["direct_primal"]["solve_ms"].append(1e3 * r.timings["wall"])
-        out["direct_primal"]["iterations"].append(r.iterations)
-        out["direct_primal"]["status"].append(r.status)
-        max_diff["direct_primal"] = max(max_diff["direct_primal"], float(np.max(np.abs(r.w - w_plugin))))
-        if previous is not None:
-            r = direct.solve(tick.p, tick.x0, mu_init=max(previous.mu, 1e-9), duals=previous)
-        out["direct_pd"]["solve_ms"].append(1e3 * r.timings["wall"])
-        out["direct_pd"]["iterations"].append(r.iterations)
-        out["direct_pd"]["status"].append(r.status)
-        max_diff["direct_pd"] = max(max_diff["direct_pd"], float(np.max(np.abs(r.w - w_plugin))))
-        previous = r if r.success else None
+        out["plugin"]["profile"].append(
+            {
+                "search_direction": fatrop.get("compute_sd_time", np.nan),
+                "initialization": fatrop.get("initialization_time", np.nan),
+                "hessian": stats.get("t_wall_nlp_hess_l", np.nan),
+                "jacobian": stats.get("t_wall_nlp_jac_g", np.nan),
+                "fatrop": fatrop.get("time_total", np.nan),
+            }
+        )
+        results = {"direct_primal": direct.solve(tick.p, tick.x0, mu_init=cfg.mu_init_warm)}
+        if previous is None:
+            results["direct_pd"] = results["direct_primal"]
+        else:
+            mu = min(max(previous.mu, 1e-12), cfg.mu_init_warm)
+            results["direct_pd"] = direct.solve(tick.p, tick.x0, mu_init=mu, duals=previous)
+        for name, r in results.items():
+            out[name]["solve_ms"].append(1e3 * r.timings["wall"])
+            out[name]["iterations"].append(r.iterations)
+            out[name]["status"].append(r.status)
+            out[name]["profile"].append(r.timings)
+            max_diff[name] = max(max_diff[name], float(np.max(np.abs(r.w - w_plugin))))
+        previous = results["direct_pd"] if results["direct_pd"].success else None
     summary = {}
     for name, rec in out.items():
+        keys = rec["profile"][0].keys()
         summary[name] = {
             **_stats(rec["solve_ms"]),
             "iterations_mean": float(np.mean(rec["iterations"])),
             "converged_fraction": float(np.mean([s == "success" for s in rec["status"]])),
+            "profile_mean_ms": {k: 1e3 * float(np.nanmean([p[k] for p in rec["profile"]])) for k in keys},
         }
         if name in max_diff:
             summary[name]["max_abs_primal_difference_to_plugin"] = max_diff[name]
     return summary
+
+
+def replay_mpc(plugin_mpc, direct_mpc, ticks: list[RecordedTick]) -> dict:
+    """Whole ticks: each MPC's ``solve()`` (parameters, prechecks, warm start, solve, plan) on the recorded
+    observations, alternating tick by tick, each MPC with its own warm-start chain; [ms] per solve (the
+    solver's share, ``solve_time``) and per tick (``timings["total"]``), iterations, statuses."""
+    out = {
+        name: {"solve_ms": [], "tick_ms": [], "iterations": [], "success": []}
+        for name in ("plugin", "direct")
+    }
+    for mpc in (plugin_mpc, direct_mpc):
+        mpc.reset()
+    for i, tick in enumerate(ticks):
+        for name, mpc in (("plugin", plugin_mpc), ("direct", direct_mpc)):
+            plan = mpc.solve(tick.q_hat, tick.v_hat, tick.t, tick.commands)
+            if i == 0:
+                continue  # the cold start
+            out[name]["solve_ms"].append(1e3 * plan.solve_time)
+            out[name]["tick_ms"].append(1e3 * plan.timings["total"])
+            out[name]["iterations"].append(plan.iterations)
+            out[name]["success"].append(plan.success)
+    return {
+        name: {
+            "per_solve": _stats(rec["solve_ms"]),
+            "per_tick": _stats(rec["tick_ms"]),
+            "iterations_mean": float(np.mean(rec["iterations"])),
+            "converged_fraction": float(np.mean(rec["success"])),
+        }
+        for name, rec in out.items()
+    }
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -169,6 +245,11 @@ def main(argv: list[str] | None = None) -> dict:
     )
     parser.add_argument("--duration", type=float, default=1.5, help="closed loop recorded [s] (default 1.5)")
     parser.add_argument("--rounds", type=int, default=2, help="replays of the recorded ticks (default 2)")
+    parser.add_argument(
+        "--flags",
+        action="append",
+        help="gcc flags of both libraries, one variant per use (default: the default build's, -O1)",
+    )
     parser.add_argument("--output", type=Path, default=OUTPUT)
     args = parser.parse_args(argv)
     if args.rounds < 1 or not args.duration > 0:
@@ -179,25 +260,61 @@ def main(argv: list[str] | None = None) -> dict:
     from wbmpc.solver import blasfeo
     from wbmpc.solver.direct import DirectFatrop
 
+    flag_sets = [tuple(f.split()) for f in (args.flags or [" ".join(codegen_default_flags())])]
     robot = load_b1_z1()
-    mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(), SolverSettings(compiled=True))
-    mpc.verbose = False
-    mpc.prepare()
-    direct = DirectFatrop(mpc.ocp, tol=mpc.solver_settings.tol, max_iter=mpc.solver_settings.max_iter)
-    ticks = record_ticks(mpc, args.duration)
-    rounds = [replay(mpc, direct, ticks) for _ in range(args.rounds)]
+
+    def make(direct: bool, flags: tuple[str, ...]):
+        solver = SolverSettings(compiled=True, compile_flags=flags, direct=direct)
+        mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(), solver)
+        mpc.verbose = False
+        mpc.prepare()  # build or load before timing
+        return mpc
+
+    variants = {}
+    for flags in flag_sets:
+        plugin_mpc, direct_mpc = make(False, flags), make(True, flags)
+        cfg = plugin_mpc.solver_settings
+        direct = DirectFatrop(plugin_mpc.ocp, tol=cfg.tol, max_iter=cfg.max_iter, flags=flags, progress=False)
+        variants[" ".join(flags)] = (plugin_mpc, direct_mpc, direct)
+    ticks = record_ticks(next(iter(variants.values()))[0], args.duration)
+    started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+    load_before = list(os.getloadavg())
+    rounds: dict[str, list] = {name: [] for name in variants}
+    for _ in range(args.rounds):
+        for name, (plugin_mpc, direct_mpc, direct) in variants.items():
+            calls = replay(plugin_mpc, direct, ticks)
+            rounds[name].append(
+                {"solver_calls": calls, "whole_ticks": replay_mpc(plugin_mpc, direct_mpc, ticks)}
+            )
     result = {
+        "what": "casadi-plugin compiled path vs the direct Fatrop driver (wbmpc.solver.direct), interleaved",
+        "problem": "B1 + Z1, N = 15, default settings, trot closed loop (rigid plant), 80 Hz ticks",
         "cpu": cpu_name(),
         "blasfeo": blasfeo.info().get("choice"),
-        "load_average": list(os.getloadavg()),
+        "started_utc": started,
+        "load_average_before": load_before,
+        "load_average_after": list(os.getloadavg()),
         "ticks": len(ticks),
-        "rounds": rounds,
-        "unix_time": time.time(),
+        "riccati_flops_per_factorisation": riccati_flops(next(iter(variants.values()))[2].layouts)["total"],
+        "variants": {
+            name: {
+                "rounds": rounds[name],
+                "plugin_build_s": plugin_mpc.compiled_nlp.build_s if plugin_mpc.compiled_nlp else None,
+                "direct_build_s": direct.built.build_s if direct.built else None,
+            }
+            for name, (plugin_mpc, _, direct) in variants.items()
+        },
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(result, indent=1))
+    args.output.write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result, indent=1))
     return result
+
+
+def codegen_default_flags() -> tuple[str, ...]:
+    from wbmpc.solver.codegen import DEFAULT_FLAGS
+
+    return DEFAULT_FLAGS
 
 
 if __name__ == "__main__":

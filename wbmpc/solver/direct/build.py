@@ -34,7 +34,7 @@ from wbmpc.solver.direct.problem import (
     stage_problem,
 )
 
-DIRECT_VERSION = 1  # bump when the generated functions or the driver's ABI change meaning
+DIRECT_VERSION = 2  # bump when the generated functions or the driver's ABI change meaning
 DRIVER_SOURCE = Path(__file__).resolve().parents[1] / "c" / "fatrop_direct.cpp"
 #: gcc flags of the generated stage functions (as the plugin path's library) and of the C++ driver.
 DEFAULT_FLAGS = codegen.DEFAULT_FLAGS
@@ -180,6 +180,7 @@ def _generate(ocp: OCP, folder: Path) -> list[Path]:
     for name in names:
         lines.append(f"int {name}(const double**, double**, casadi_int*, double*, int);")
         lines.append(f"int {name}_work(casadi_int*, casadi_int*, casadi_int*, casadi_int*);")
+        lines.append(f"const casadi_int* {name}_sparsity_out(casadi_int);")
     lines.append("int wbmpc_direct_function(int kind, int which, eval_fn* eval, work_fn* work) {")
     sp = stage_params.name()
     lines.append(f"  if (which == -1) {{ *eval = {sp}; *work = {sp}_work; return 0; }}")
@@ -190,6 +191,13 @@ def _generate(ocp: OCP, folder: Path) -> list[Path]:
     # A stage type the horizon does not use (e.g. no plain node) takes another's: never called.
     fallback = next(iter(sorted(table.items())))[1]
     lines.append(f"  *eval = {fallback}; *work = {fallback}_work; return 0;")
+    lines.append("}")
+    # Output i's sparsity (CasADi's compressed-column format) of the same functions.
+    lines.append("const casadi_int* wbmpc_direct_sparsity_out(int kind, int which, int i) {")
+    lines.append(f"  if (which == -1) return {sp}_sparsity_out(i);")
+    for (kind, which), name in sorted(table.items()):
+        lines.append(f"  if (kind == {kind} && which == {which}) return {name}_sparsity_out(i);")
+    lines.append(f"  return {fallback}_sparsity_out(i);")
     lines.append("}")
     (folder / "wbmpc_direct_table.c").write_text("\n".join(lines) + "\n")
     sources.append(folder / "wbmpc_direct_table.c")
