@@ -120,6 +120,15 @@ def test_the_shifted_guess_keeps_the_previous_configurations_at_their_times(robo
     t = 0.2  # not 0: the node times of both plans start at t
     first = mpc.solve(q, v, t=t, commands=Commands(base_linear_velocity=np.array([0.3, 0.0, 0.0])))
     assert first.success
+    # The converged plan: at t on the configured steps, from the measurement, the trot's stance flags at its
+    # stage times, the forces per contact frame, the primal and dual solution.
+    dts = mpc.time_steps()
+    assert first.t == t and np.array_equal(first.dts, dts)
+    np.testing.assert_allclose(first.q[0], q, atol=1e-9)
+    stage_times = t + np.concatenate([[0.0], np.cumsum(dts)])[:-1]
+    np.testing.assert_array_equal(first.contact, mpc.config.gait.sample(stage_times).contact)
+    assert first.contact.dtype == bool and first.forces.shape == (mpc.n_nodes - 1, 5, 3)
+    assert first.w.shape == (mpc.ocp.n_variables,) and first.lam_g.shape == (mpc.ocp.n_constraints,)
     q_hat = pin.integrate(robot.model, first.q[0], 0.01 * np.arange(robot.nv) / robot.nv)
     v_hat = first.v[0] + 0.1
     params = mpc.parameters(q_hat, v_hat, first.t, Commands(ee_force=np.array([3.0, 2.0, -10.0])))
@@ -514,10 +523,14 @@ def test_a_push_during_a_swing_aborts_it_in_the_solve(robot, monkeypatch):
     monkeypatch.setattr(mpc, "_solver", lambda c, max_iter=None: _Fake(mpc.ocp.n_constraints))
     pushed = v.copy()
     pushed[1] = 0.6
+    assert mpc.stats["swing_aborts"] == 0
     mpc.solve(q, pushed, t=t)
     assert sorted(mpc.aborted_swings) == list(np.flatnonzero(swinging))
+    assert mpc.stats["swing_aborts"] == 2  # each aborted swing counted once
     contact = mpc.ocp.params.unpack(mpc.last_inputs["p"], "contact")
     assert np.all(contact[swinging] == 1.0)
+    mpc.solve(q, pushed, t=t + 0.005)  # still pushed: the same swings, already aborted, are not counted again
+    assert mpc.stats["swing_aborts"] == 2
     # Unpushed, the same solve plans them in swing.
     mpc.reset()
     mpc.solve(q, v, t=t)
@@ -841,3 +854,218 @@ def test_solver_timings_split_the_wall_time():
         if not stats:
             expected["solver"] = total
         assert solver_timings(stats, 2.0) == expected, stats
+
+
+# --- parameters, weights, the solvers' construction, the MPC's arguments (mutants of parameters, weights,
+# recovery_parameters, solver_options, _solver, make_solver, __init__, gait, contact_plan; mpc_rest.md) ------
+def _stage_times(mpc, t):
+    """The times of the stages' first nodes: ``t`` then the configured steps added up."""
+    return t + np.concatenate([[0.0], np.cumsum(mpc.time_steps())])[:-1]
+
+
+def test_a_gait_schedule_carried_by_the_commands_is_the_gait_of_the_solve(robot):
+    """A command schedule's gait (a 0.5 s trot then a 0.8 s trot, both swings in the horizon) replaces the
+    configured stand: its stance flags at the stage times, and each swinging foot's vertical velocity target
+    that of its own gait's swing (0.25 s or 0.4 s) at its phase; no gait commanded: the configured one."""
+    from wbmpc.ocp.gait import GaitSchedule, swing_vertical_velocity
+
+    mpc = _mpc(robot, gait="stand", n_nodes=8)
+    schedule = GaitSchedule([(make_gait("trot", 0.5), 0.5), (make_gait("trot", 0.8), 10.0)])
+    q, v, t = robot.q_nominal, np.zeros(robot.nv), 0.42
+    assert mpc.gait() is mpc.config.gait and mpc.gait(Commands()) is mpc.config.gait
+    assert mpc.gait(Commands(gait=schedule)) is schedule
+    params = mpc.parameters(q, v, t, Commands(gait=schedule))
+    sample = schedule.sample(_stage_times(mpc, t))
+    np.testing.assert_array_equal(params["contact"], sample.contact)
+    swinging = ~sample.contact
+    assert set(np.unique(sample.swing_duration[swinging])) == {0.25, 0.4}
+    swing = mpc.config.swing
+    expected = np.zeros_like(params["swing_vz"])
+    for foot, k in zip(*np.nonzero(swinging), strict=True):
+        expected[foot, k] = swing_vertical_velocity(
+            sample.swing_phase[foot, k],
+            sample.swing_duration[foot, k],
+            swing.height,
+            swing.v_liftoff,
+            swing.v_touchdown,
+        )
+    np.testing.assert_allclose(params["swing_vz"], expected, rtol=1e-12, atol=1e-12)
+    assert np.any(expected != 0.0)
+    standing = mpc.parameters(q, v, t, Commands())
+    assert np.all(standing["contact"] == 1.0) and np.all(standing["swing_vz"] == 0.0)
+
+
+def test_the_force_targets_split_the_weight_by_the_front_force_ratio(robot):
+    """Standing: the front feet carry ``front_force_ratio`` of the weight, the rear ones the rest, each pair
+    equally; the config's ratio, else the robot's (0.4 here, not the 0.5 of an even split)."""
+    light_front = dataclasses.replace(robot, front_force_ratio=0.4)
+    weight = robot.mass * robot.gravity
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    for ratio, front in ((None, 0.4), (0.7, 0.7)):
+        mpc = _mpc(light_front, front_force_ratio=ratio)
+        force = mpc.parameters(q, v, 0.0, Commands())["force_des"]
+        np.testing.assert_allclose(force[:2], front * weight / 2, rtol=1e-12)  # FL, FR
+        np.testing.assert_allclose(force[2:], (1.0 - front) * weight / 2, rtol=1e-12)  # RL, RR
+
+
+def test_the_end_effector_velocity_command_holds_on_every_stage(robot):
+    """A (3,) arm velocity command is the target of every stage (each column of the (3, N-1) block); a
+    (3, N-1) one gives each stage its own column."""
+    mpc = _mpc(robot, n_nodes=4)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    held = np.array([0.1, -0.2, 0.3])
+    layout = mpc.ocp.params
+    params = mpc.parameters(q, v, 0.0, Commands(ee_velocity=held))
+    np.testing.assert_array_equal(
+        layout.unpack(layout.pack(params), "ee_velocity"), np.tile(held[:, None], 3)
+    )
+    per_stage = np.array([[0.1, 0.2, 0.3], [-0.1, 0.0, 0.1], [0.05, 0.0, -0.05]])
+    params = mpc.parameters(q, v, 0.0, Commands(ee_velocity=per_stage))
+    np.testing.assert_array_equal(layout.unpack(layout.pack(params), "ee_velocity"), per_stage)
+
+
+def test_the_weights_of_the_config_are_used_and_bad_ones_refused_with_the_whole_message(robot):
+    """Weights of the config (zeros and weights below 1 are weights too, a list of numbers an array) are the
+    cost's; ``None`` is the default. A config changed after its checks (a NaN, an inf, a negative weight, a
+    wrong size or shape) is refused by the MPC with the whole message."""
+    from wbmpc.control.mpc import default_weights
+
+    mpc = _mpc(robot)
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    Q0, R0 = default_weights(robot)
+    Q, R = np.resize([0.0, 0.5, 2.0], Q0.size), np.resize([0.25, 0.0], R0.size)
+    mpc.config.Q = list(Q)
+    Qw, Rw = mpc.weights()
+    np.testing.assert_array_equal(Qw, Q)
+    np.testing.assert_array_equal(Rw, R0)
+    mpc.config.R = R
+    layout = mpc.ocp.params
+    p = layout.pack(mpc.parameters(q, v, 0.0, Commands()))
+    np.testing.assert_array_equal(layout.unpack(p, "Q"), Q)
+    np.testing.assert_array_equal(layout.unpack(p, "R"), R)
+    n = Q0.size
+    prefix = f"MPCConfig.Q must hold {n} finite weights >= 0 for this robot and formulation, got shape "
+    for value, tail in (
+        (np.full(n, np.nan), f"({n},), min nan"),
+        (np.where(np.arange(n) == 3, np.inf, 1.0), f"({n},), min 1.0"),
+        (Q - 1.0, f"({n},), min -1.0"),
+        (np.ones(3), "(3,), min 1.0"),
+        (np.ones((n, 1)), f"({n}, 1), min 1.0"),
+        (np.zeros(0), "(0,)"),
+    ):
+        mpc.config.Q = value
+        with pytest.raises(ValueError) as refused:
+            mpc.weights()
+        assert str(refused.value) == prefix + tail
+
+
+def test_the_solver_options_of_each_start(robot):
+    """Cold starts: the cold iteration cap and barrier parameter; warm starts: the warm ones and Fatrop's
+    warm-start bound push; a given cap replaces the settings' (the cold retry); the tolerance and the
+    constraints' equality flags (Fatrop's structure detection) in all."""
+    mpc = _mpc(robot, tol=2e-3, max_iter=11, cold_max_iter=22, mu_init_warm=1e-3, mu_init_cold=0.2)
+    base = {"print_level": 0, "tol": 2e-3}
+    for (cold, max_iter), inner in (
+        ((True, None), {**base, "max_iter": 22, "mu_init": 0.2}),
+        ((False, None), {**base, "max_iter": 11, "mu_init": 1e-3, "bound_push": 1e-7}),
+        ((True, 5), {**base, "max_iter": 5, "mu_init": 0.2}),
+        ((False, 5), {**base, "max_iter": 5, "mu_init": 1e-3, "bound_push": 1e-7}),
+    ):
+        options = mpc.solver_options(cold, max_iter)
+        assert options["fatrop"] == inner, (cold, max_iter)
+        assert options["structure_detection"] == "auto"
+        np.testing.assert_array_equal(options["equality"], mpc.ocp.equality)
+
+
+def test_each_start_has_its_own_solver_built_once(robot, monkeypatch):
+    """The cold start, the warm start and a capped cold start (the retry) each get a solver built with their
+    own options, on first use, and the same one afterwards."""
+    mpc = _mpc(robot)
+    built = []
+    monkeypatch.setattr(
+        mpc, "make_solver", lambda name, cold, max_iter=None: built.append((cold, max_iter)) or object()
+    )
+    cold, warm, retry = mpc._solver(True), mpc._solver(False), mpc._solver(True, 7)
+    assert len({id(cold), id(warm), id(retry)}) == 3
+    assert mpc._solver(True) is cold and mpc._solver(False) is warm and mpc._solver(True, 7) is retry
+    assert built == [(True, None), (False, None), (True, 7)]
+
+
+def test_a_compiled_mpc_builds_its_library_once_and_solves_with_it(robot, monkeypatch):
+    """``SolverSettings(compiled=True)``: the first solver builds the library (the MPC's OCP, the settings'
+    flags, progress shown by a new MPC), every solver is made from it with its own options and the horizon
+    (the library's check); nothing is built before (no compile for an MPC that never solves)."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    import wbmpc.control.mpc as mpc_module
+
+    mpc = WholeBodyMPC(
+        robot,
+        OCPSettings(n_nodes=4),
+        MPCConfig(gait=make_gait("stand"), dt_max=0.03),
+        SolverSettings(compiled=True, compile_flags=("-O0",)),
+    )
+    assert mpc.compiled_nlp is None and mpc.last_inputs is None  # nothing built or solved yet
+    library = Path("/nonexistent/wbmpc_nlp.so")
+    builds, made = [], []
+
+    def build(ocp, flags, progress):
+        builds.append((ocp, flags, progress))
+        return SimpleNamespace(library=library)
+
+    monkeypatch.setattr(mpc_module.codegen, "build", build)
+    monkeypatch.setattr(
+        mpc_module, "make_nlpsol", lambda *args, **kwargs: made.append((args, kwargs)) or object()
+    )
+    mpc.make_solver("cold", True)
+    mpc.make_solver("retry", True, 7)
+    mpc.make_solver("warm", False)
+    assert len(builds) == 1 and builds[0][0] is mpc.ocp and builds[0][1:] == (("-O0",), True)
+    assert mpc.compiled_nlp.library == library
+    assert len(made) == 3
+    for (args, kwargs), (name, cold, max_iter) in zip(
+        made, [("cold", True, None), ("retry", True, 7), ("warm", False, None)], strict=True
+    ):
+        assert args[:2] == (name, "fatrop") and args[2] is mpc.ocp.nlp and args[4] == library
+        expected = mpc.solver_options(cold, max_iter)
+        assert args[3]["fatrop"] == expected["fatrop"] and args[3].keys() == expected.keys()
+        assert kwargs == {"n_nodes": 4}
+
+
+def test_the_mpc_refuses_wrong_arguments_with_the_whole_message(robot):
+    three_feet = dataclasses.replace(robot, foot_frames=robot.foot_frames[:3])
+    cases = [
+        (
+            lambda: WholeBodyMPC("b1_z1"),
+            "robot must be a wbmpc.model.robot.Robot (see load_robot), got 'b1_z1'",
+        ),
+        (
+            lambda: WholeBodyMPC(three_feet),
+            f"robot {robot.name!r} has 3 foot frames {list(robot.foot_frames[:3])}; the MPC's gaits "
+            "schedule 4 feet in the order ('FL', 'FR', 'RL', 'RR') (front-left, front-right, rear-left, "
+            "rear-right): give load_robot four foot_frames",
+        ),
+        (lambda: WholeBodyMPC(robot, {"n_nodes": 5}), "settings must be an OCPSettings, got {'n_nodes': 5}"),
+        (lambda: WholeBodyMPC(robot, None, {"mu": 0.5}), "config must be an MPCConfig, got {'mu': 0.5}"),
+        (
+            lambda: WholeBodyMPC(robot, None, None, {"max_iter": 7}),
+            "solver must be a SolverSettings (wbmpc.control.mpc), got {'max_iter': 7}",
+        ),
+    ]
+    for make, message in cases:
+        with pytest.raises(ValueError) as refused:
+            make()
+        assert str(refused.value) == message
+
+
+def test_the_contact_plan_is_the_configured_gait_or_the_one_given(robot):
+    """Without an aborted swing: the configured gait's stance flags at the given times, or those of the
+    gait given."""
+    mpc = _mpc(robot, gait="trot")
+    times = np.linspace(0.0, 0.8, 17)
+    walk = make_gait("walk")
+    trot_flags, walk_flags = mpc.config.gait.sample(times).contact, walk.sample(times).contact
+    assert not np.array_equal(trot_flags, walk_flags)
+    np.testing.assert_array_equal(mpc.contact_plan(times), trot_flags)
+    np.testing.assert_array_equal(mpc.contact_plan(times, walk), walk_flags)
