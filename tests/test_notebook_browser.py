@@ -316,14 +316,14 @@ def test_run_all_then_slider_resolves_and_redraws(ran):
 
 
 # --- the saved notebook, reopened without its kernel ------------------------------------------------------
-# The code cells that show a 3-D scene, each marked (data-wbmpc-cell) and scrolled to so that JupyterLab's
-# windowed notebook renders it; per cell: its index, trust and what its scene output holds.
+# The code cells that show a 3-D scene (an output with a live view), each marked (data-wbmpc-cell) and
+# scrolled to so that JupyterLab's windowed notebook renders it; per cell: index, trust, what it shows.
 SCENE_CELLS = """async () => {
   const notebook = window.jupyterapp.shell.currentWidget.content;
   const found = [];
   for (const [i, cell] of notebook.widgets.entries()) {
-    const source = cell.model.sharedModel.getSource();
-    if (cell.model.type !== 'code' || !source.includes('.notebook_view(')) continue;
+    if (cell.model.type !== 'code') continue;
+    if (!JSON.stringify(cell.model.outputs.toJSON()).includes('wbmpc-live-scene')) continue;  // a 3-D view
     await notebook.scrollToItem(i, 'center');
     cell.node.setAttribute('data-wbmpc-cell', String(i));
     const imgs = Array.from(cell.node.querySelectorAll('.jp-OutputArea-output img'));

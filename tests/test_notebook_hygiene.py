@@ -136,8 +136,13 @@ def execute_quickstart(folder: Path) -> Path:
 
 
 def scene_cells(nb: nbformat.NotebookNode) -> list[tuple[int, nbformat.NotebookNode]]:
-    """The code cells that show a 3-D scene (they end with ``.notebook_view(...)``)."""
-    return [(i, c) for i, c in enumerate(nb.cells) if c.cell_type == "code" and ".notebook_view(" in c.source]
+    """The code cells that show a 3-D scene: an HTML output with the live view of a ``notebook_view(...)``."""
+    return [
+        (i, c)
+        for i, c in enumerate(nb.cells)
+        if c.cell_type == "code"
+        and any("wbmpc-live-scene" in o.get("data", {}).get("text/html", "") for o in c.get("outputs", []))
+    ]
 
 
 def static_pages(cell: nbformat.NotebookNode) -> list[tuple[str, str]]:
