@@ -1,6 +1,7 @@
 """Benchmark: the casadi-plugin compiled path against the direct primal-dual warm-started Fatrop driver.
 
-Both solve the same ticks, interleaved in one process (same BLASFEO, same machine state): the ticks are
+Both solve the same ticks in one process (same BLASFEO), taking turns round after round (one pass over the
+ticks per variant, as ``wbmpc.studies.realtime`` does, so that drift hits them alike): the ticks are
 recorded from a short closed loop of the default benchmark (B1 + Z1, N = 15, trot with the arm reference,
 rigid plant, the plugin path in the loop), each tick's parameters and shifted primal guess kept. Per tick:
 
@@ -11,11 +12,11 @@ rigid plant, the plugin path in the loop), each tick's parameters and shifted pr
   parameter of its previous tick's solution (no least-squares initialisation).
 
 Then per whole tick: two MPCs (``SolverSettings(direct=False)`` and ``direct=True``) each call ``solve()``
-(parameters in, plan out) on the recorded observations, alternating tick by tick, each with its own
-warm-start chain. Mean and p95 times per solve and per tick, iterations, the load average and the CPU go
-to ``data/bench/direct_fatrop.json``::
+(parameters in, plan out) on the recorded observations, each with its own warm-start chain. Mean and p95
+times per solve and per tick, iterations, the load average and the CPU go to
+``data/bench/direct_fatrop.json``::
 
-    python -m wbmpc.studies.direct_fatrop --rounds 2 --flags "-O1" --flags "-O3 -march=native"
+    python -m wbmpc.studies.direct_fatrop --rounds 2 --flags=-O1 --flags="-O3 -march=native"
 """
 
 from __future__ import annotations
@@ -151,24 +152,23 @@ def riccati_flops(layouts) -> dict:
 
 
 def replay(mpc, direct, ticks: list[RecordedTick]) -> dict:
-    """Solver calls on identical inputs, interleaved per tick: the plugin's ``nlpsol``, the direct driver
-    from the same start (primal warm, Fatrop's dual start) and the direct driver primal-dual warm started
-    from its previous tick; per variant times [ms], iterations, statuses, largest primal difference."""
+    """Solver calls on identical inputs: the plugin's ``nlpsol``, the direct driver from the same start
+    (primal warm, Fatrop's dual start) and the direct driver primal-dual warm started from its previous
+    tick, each variant in its own pass over the ticks (a turn: a real MPC worker runs one solver, whose
+    data stay in the caches; interleaving them tick by tick evicts each other's); per variant times [ms],
+    iterations, statuses, largest primal difference to the plugin."""
     solver = mpc._solver(cold=False)
     cfg = mpc.solver_settings
     names = ("plugin", "direct_primal", "direct_pd")
     out = {name: {"solve_ms": [], "iterations": [], "status": [], "profile": []} for name in names}
-    max_diff = {"direct_primal": 0.0, "direct_pd": 0.0}
-    previous = None
-    for tick in ticks:
-        if tick.cold:
-            previous = None
-            continue
+    warm = [tick for tick in ticks if not tick.cold]
+    reference = []
+    for tick in warm:
         start = time.perf_counter()
         sol = solver(x0=tick.x0, p=tick.p, lbg=mpc.ocp.lbg, ubg=mpc.ocp.ubg)
         elapsed = time.perf_counter() - start
         stats = solver.stats()
-        w_plugin = np.array(sol["x"]).ravel()
+        reference.append(np.array(sol["x"]).ravel())
         fatrop = stats.get("fatrop", {})
         out["plugin"]["solve_ms"].append(1e3 * elapsed)
         out["plugin"]["iterations"].append(int(stats["iter_count"]))
@@ -182,19 +182,21 @@ def replay(mpc, direct, ticks: list[RecordedTick]) -> dict:
                 "fatrop": fatrop.get("time_total", np.nan),
             }
         )
-        results = {"direct_primal": direct.solve(tick.p, tick.x0, mu_init=cfg.mu_init_warm)}
-        if previous is None:
-            results["direct_pd"] = results["direct_primal"]
-        else:
-            mu = min(max(previous.mu, 1e-12), cfg.mu_init_warm)
-            results["direct_pd"] = direct.solve(tick.p, tick.x0, mu_init=mu, duals=previous)
-        for name, r in results.items():
+    max_diff = {"direct_primal": 0.0, "direct_pd": 0.0}
+    for name in ("direct_primal", "direct_pd"):
+        previous = None
+        for tick, w_plugin in zip(warm, reference, strict=True):
+            if name == "direct_pd" and previous is not None:
+                mu = min(max(previous.mu, 1e-12), cfg.mu_init_warm)
+                r = direct.solve(tick.p, tick.x0, mu_init=mu, duals=previous)
+            else:  # primal warm; also the first tick of the primal-dual chain
+                r = direct.solve(tick.p, tick.x0, mu_init=cfg.mu_init_warm)
             out[name]["solve_ms"].append(1e3 * r.timings["wall"])
             out[name]["iterations"].append(r.iterations)
             out[name]["status"].append(r.status)
             out[name]["profile"].append(r.timings)
             max_diff[name] = max(max_diff[name], float(np.max(np.abs(r.w - w_plugin))))
-        previous = results["direct_pd"] if results["direct_pd"].success else None
+            previous = r if r.success else None
     summary = {}
     for name, rec in out.items():
         keys = rec["profile"][0].keys()
@@ -211,32 +213,28 @@ def replay(mpc, direct, ticks: list[RecordedTick]) -> dict:
 
 def replay_mpc(plugin_mpc, direct_mpc, ticks: list[RecordedTick]) -> dict:
     """Whole ticks: each MPC's ``solve()`` (parameters, prechecks, warm start, solve, plan) on the recorded
-    observations, alternating tick by tick, each MPC with its own warm-start chain; [ms] per solve (the
-    solver's share, ``solve_time``) and per tick (``timings["total"]``), iterations, statuses."""
-    out = {
-        name: {"solve_ms": [], "tick_ms": [], "iterations": [], "success": []}
-        for name in ("plugin", "direct")
-    }
-    for mpc in (plugin_mpc, direct_mpc):
+    observations, one MPC's pass after the other's (turns, as :func:`replay`), each with its own
+    warm-start chain from a cold first tick; [ms] per solve (the solver's share, ``solve_time``) and per
+    tick (``timings["total"]``), iterations, statuses."""
+    out = {}
+    for name, mpc in (("plugin", plugin_mpc), ("direct", direct_mpc)):
         mpc.reset()
-    for i, tick in enumerate(ticks):
-        for name, mpc in (("plugin", plugin_mpc), ("direct", direct_mpc)):
+        rec = {"solve_ms": [], "tick_ms": [], "iterations": [], "success": []}
+        for i, tick in enumerate(ticks):
             plan = mpc.solve(tick.q_hat, tick.v_hat, tick.t, tick.commands)
             if i == 0:
                 continue  # the cold start
-            out[name]["solve_ms"].append(1e3 * plan.solve_time)
-            out[name]["tick_ms"].append(1e3 * plan.timings["total"])
-            out[name]["iterations"].append(plan.iterations)
-            out[name]["success"].append(plan.success)
-    return {
-        name: {
+            rec["solve_ms"].append(1e3 * plan.solve_time)
+            rec["tick_ms"].append(1e3 * plan.timings["total"])
+            rec["iterations"].append(plan.iterations)
+            rec["success"].append(plan.success)
+        out[name] = {
             "per_solve": _stats(rec["solve_ms"]),
             "per_tick": _stats(rec["tick_ms"]),
             "iterations_mean": float(np.mean(rec["iterations"])),
             "converged_fraction": float(np.mean(rec["success"])),
         }
-        for name, rec in out.items()
-    }
+    return out
 
 
 def main(argv: list[str] | None = None) -> dict:
