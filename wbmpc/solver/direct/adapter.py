@@ -27,6 +27,8 @@ from wbmpc.solver import codegen
 from wbmpc.solver.direct.driver import DirectFatrop, DirectResult
 from wbmpc.solver.nlpsol import make_nlpsol
 
+#: Fatrop's default ``bound_push`` (``IpInitializer``), what the plugin's cold solves run with.
+FATROP_BOUND_PUSH = 1e-2
 # One driver per MPC, shared by its cold, warm and retry solvers (the Fatrop algorithm is built once).
 _DRIVERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
@@ -43,12 +45,13 @@ class DirectNlpsol:
     """
 
     def __init__(self, mpc, name: str, cold: bool, max_iter: int | None, driver: DirectFatrop):
-        cfg = mpc.solver_settings
+        # Fatrop's options of the plugin solver this one stands for (wbmpc.solver.nlpsol.solver_options).
+        fatrop = mpc.solver_options(cold, max_iter)["fatrop"]
         self.mpc, self.name, self.cold = mpc, name, cold
-        self.max_iter = int(
-            max_iter if max_iter is not None else (cfg.cold_max_iter if cold else cfg.max_iter)
-        )
-        self.mu_init = cfg.mu_init_cold if cold else cfg.mu_init_warm
+        self.max_iter = int(fatrop["max_iter"])
+        self.mu_init = float(fatrop["mu_init"])
+        self.tol = float(fatrop["tol"])
+        self.bound_push = float(fatrop.get("bound_push", FATROP_BOUND_PUSH))
         self.driver = driver
         self._plugin = None
         self._stats: dict = {}
@@ -84,8 +87,9 @@ class DirectNlpsol:
                 raise ValueError(
                     f"the direct Fatrop driver has the OCP's {name} compiled in; got other bounds"
                 )
-        if driver.max_iter != self.max_iter:
-            driver.set_option("max_iter", self.max_iter)
+        for option in ("max_iter", "tol", "bound_push"):  # the shared driver holds the last solver's
+            if driver.options.get(option) != getattr(self, option):
+                driver.set_option(option, getattr(self, option))
         last: DirectResult | None = driver.last
         warm = (
             last is not None and lam_g0 is not None and np.array_equal(np.asarray(lam_g0).ravel(), last.lam_g)

@@ -154,9 +154,10 @@ class DirectFatrop:
         self._handle = ctypes.c_void_p(handle)
         self.n_ineq = int(self._lib.wbmpc_direct_n_ineq(self._handle))
         self.tol, self.max_iter = float(tol), int(max_iter)
-        self.set_option("tol", tol)
+        self.options: dict[str, float | int] = {}  # what set_option last set
+        self.set_option("tol", float(tol))
         self.set_option("max_iter", int(max_iter))
-        self.set_option("bound_push", bound_push)
+        self.set_option("bound_push", float(bound_push))
         # Output buffers, reused (the caller gets copies).
         self._w = np.zeros(self.n_w)
         self._lam = np.zeros(self.n_g)
@@ -214,6 +215,7 @@ class DirectFatrop:
             raise ValueError(
                 f"Fatrop option {name}={value!r}: {self._lib.wbmpc_direct_last_error(self._handle).decode()}"
             )
+        self.options[name] = value
         if name == "max_iter":
             self.max_iter = int(value)
 
