@@ -451,8 +451,8 @@ def _check_snapshot_draws_the_robot(page, index: int) -> None:
 @pytest.mark.xfail(
     raises=AssertionError,  # not a timeout
     strict=True,
-    reason="Viewer.notebook_view's snapshot is a data: URL of 5-10 MB, which Chromium blocks (2 MiB URL "
-    "limit): wbmpc.viz.snapshot.snapshot_iframe (srcdoc) shows it (tests/test_notebook_hygiene.py)",
+    reason="notebook 00 calls Viewer.notebook_view, whose snapshot is a data: URL of 5-10 MB that Chromium "
+    "blocks (2 MiB URL limit); wbmpc.viz.snapshot.notebook_view (srcdoc) shows it: remove this mark then",
 )
 def test_saved_notebook_shows_the_robot_without_its_kernel(saved, lab, browser):
     """Reopened (not run) after its kernel and meshcat servers are gone, each 3-D cell of the saved notebook
@@ -473,9 +473,9 @@ def test_saved_notebook_shows_the_robot_without_its_kernel(saved, lab, browser):
 @pytest.mark.xfail(
     raises=AssertionError,
     strict=True,
-    reason="JupyterLab sanitizes the HTML of an untrusted notebook (one saved elsewhere, e.g. by nbclient or "
-    "a colleague): both iframes of Viewer.notebook_view are dropped and the folded snapshot is empty. Only "
-    "an <img> (or an image/png output) survives: the 3-D cells need a picture of the scene",
+    reason="JupyterLab drops the iframes of Viewer.notebook_view from an untrusted notebook (saved "
+    "elsewhere, e.g. by nbclient or a colleague); wbmpc.viz.snapshot.notebook_view adds an <img>, which "
+    "stays: remove this mark when notebook 00 uses it",
 )
 def test_untrusted_saved_notebook_shows_the_robot(saved, lab, browser):
     """The same saved notebook opened where JupyterLab does not trust it (a copy with one edit, as a notebook
