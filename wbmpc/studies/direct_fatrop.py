@@ -12,8 +12,9 @@ rigid plant, the plugin path in the loop), each tick's parameters and shifted pr
   parameter of its previous tick's solution (no least-squares initialisation).
 
 Then per whole tick: two MPCs (``SolverSettings(direct=False)`` and ``direct=True``) each call ``solve()``
-(parameters in, plan out) on the recorded observations, each with its own warm-start chain. Mean and p95
-times per solve and per tick, iterations, the load average and the CPU go to
+(parameters in, plan out) on the recorded observations, each with its own warm-start chain; and each MPC
+in the closed loop itself (falls, convergence, iterations, how far the two runs' states get apart). Mean
+and p95 times per solve and per tick, iterations, the load average and the CPU go to
 ``data/bench/direct_fatrop.json``::
 
     python -m wbmpc.studies.direct_fatrop --rounds 2 --flags=-O1 --flags="-O3 -march=native"
@@ -242,6 +243,32 @@ def replay_mpc(plugin_mpc, direct_mpc, ticks: list[RecordedTick]) -> dict:
     return out
 
 
+def closed_loops(plugin_mpc, direct_mpc, duration: float) -> dict:
+    """Both MPCs in the default closed loop (trot, rigid plant, delay off), one after the other: whether the
+    robot fell, convergence, iterations, solve times [ms] and how far the direct run's base and joints get
+    from the plugin run's (the plans differ only within the tolerance)."""
+    from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
+
+    runs, out = {}, {}
+    for name, mpc in (("plugin", plugin_mpc), ("direct", direct_mpc)):
+        result = run_closed_loop(mpc, ClosedLoopConfig(duration=duration), progress=False)
+        log = result.log
+        runs[name] = np.asarray(log.q)
+        out[name] = {
+            "fell": bool(result.fell),
+            "converged_fraction": float(np.mean(log.success)),
+            "iterations_mean": float(np.mean(log.iterations[1:])),
+            "solve": _stats([1e3 * t for t in log.solve_time[1:]]),
+        }
+    n = min(len(runs["plugin"]), len(runs["direct"]))
+    difference = np.abs(runs["direct"][:n] - runs["plugin"][:n])
+    out["max_abs_difference"] = {
+        "base_position_m": float(difference[:, :3].max()),
+        "joint_positions_rad": float(difference[:, 7:].max()),
+    }
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(
         prog="python -m wbmpc.studies.direct_fatrop", description=__doc__.splitlines()[0]
@@ -286,9 +313,9 @@ def main(argv: list[str] | None = None) -> dict:
     for _ in range(args.rounds):
         for name, (plugin_mpc, direct_mpc, direct) in variants.items():
             calls = replay(plugin_mpc, direct, ticks)
-            rounds[name].append(
-                {"solver_calls": calls, "whole_ticks": replay_mpc(plugin_mpc, direct_mpc, ticks)}
-            )
+            entry = {"solver_calls": calls, "whole_ticks": replay_mpc(plugin_mpc, direct_mpc, ticks)}
+            entry["closed_loop"] = closed_loops(plugin_mpc, direct_mpc, args.duration)
+            rounds[name].append(entry)
     result = {
         "what": "casadi-plugin compiled path vs the direct Fatrop driver (wbmpc.solver.direct), interleaved",
         "problem": "B1 + Z1, N = 15, default settings, trot closed loop (rigid plant), 80 Hz ticks",
