@@ -152,6 +152,100 @@ def riccati_flops(layouts) -> dict:
     return {"per_stage": per_stage, "total": float(sum(per_stage))}
 
 
+_KERNEL_BENCH_C = r"""
+/* Times BLASFEO's kernels of one Riccati stage (see riccati_flops) on the process's libblasfeo. */
+#include <blasfeo.h>
+#include <stdlib.h>
+#include <time.h>
+static double now(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+/* kind: 0 gemm_nt(m, n, k), 1 syrk_ln_mn(m, n, k), 2 potrf_l_mn(m, n). Returns seconds per call. */
+double wbmpc_kernel_seconds(int kind, int m, int n, int k, int repeats) {
+    int s = m > n ? m : n; s = s > k ? s : k;
+    struct blasfeo_dmat A, B, C, D;
+    void *mem = malloc(4 * blasfeo_memsize_dmat(s, s) + 256);
+    char *p = (char *)(((size_t)mem + 63) / 64 * 64);
+    blasfeo_create_dmat(s, s, &A, p); p += blasfeo_memsize_dmat(s, s);
+    blasfeo_create_dmat(s, s, &B, p); p += blasfeo_memsize_dmat(s, s);
+    blasfeo_create_dmat(s, s, &C, p); p += blasfeo_memsize_dmat(s, s);
+    blasfeo_create_dmat(s, s, &D, p);
+    blasfeo_dgese(s, s, 0.01, &A, 0, 0); blasfeo_dgese(s, s, 0.01, &B, 0, 0);
+    blasfeo_dgese(s, s, 0.0, &C, 0, 0); blasfeo_ddiare(s, 10.0 * s, &C, 0, 0);
+    double best = 1e9;
+    for (int round = 0; round < 5; ++round) {
+        double t0 = now();
+        for (int r = 0; r < repeats; ++r) {
+            if (kind == 0)
+                blasfeo_dgemm_nt(m, n, k, 1.0, &A, 0, 0, &B, 0, 0, 1.0, &C, 0, 0, &D, 0, 0);
+            else if (kind == 1)
+                blasfeo_dsyrk_ln_mn(m, n, k, 1.0, &A, 0, 0, &A, 0, 0, 1.0, &C, 0, 0, &D, 0, 0);
+            else
+                blasfeo_dpotrf_l_mn(m, n, &C, 0, 0, &D, 0, 0);
+        }
+        double t = (now() - t0) / repeats;
+        if (t < best) best = t;
+    }
+    free(mem);
+    return best;
+}
+"""
+
+
+def blasfeo_kernel_rates(layouts, repeats: int = 2000) -> dict:
+    """GFLOP/s that the process's BLASFEO reaches on the main kernels of the Riccati stages of ``layouts``
+    (``gemm_nt``, ``syrk_ln_mn``, ``potrf_l_mn`` at the sizes :func:`riccati_flops` counts), and the time
+    of those kernels for one whole factorisation [s]. Compiles a small C file with gcc (a temporary folder).
+
+    Raises:
+        RuntimeError: gcc failed.
+    """
+    import ctypes
+    import subprocess
+    import tempfile
+
+    from wbmpc.solver.direct.build import casadi_dir
+
+    include = casadi_dir() / "include"
+    with tempfile.TemporaryDirectory() as tmp:
+        src, lib = Path(tmp) / "kernels.c", Path(tmp) / "libkernels.so"
+        src.write_text(_KERNEL_BENCH_C)
+        command = ["gcc", "-O2", "-shared", "-fPIC", str(src), f"-I{include}", "-o", str(lib)]
+        command += [f"-L{casadi_dir()}", "-lblasfeo"]
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"compiling the kernel benchmark failed: {done.stderr[-1000:]}")
+        kernels = ctypes.CDLL(str(lib))  # its libblasfeo.so.0 is the one the process mapped already
+        kernels.wbmpc_kernel_seconds.restype = ctypes.c_double
+        kernels.wbmpc_kernel_seconds.argtypes = [ctypes.c_int] * 5
+        rates, total_s, cache = [], 0.0, {}
+        for i, st in enumerate(layouts):
+            nu, nx, ng, ni = st.nu, st.nx, st.eq_rows.size, st.ineq_rows.size
+            nxp1 = layouts[i + 1].nx if i + 1 < len(layouts) else 0
+            n, m, r = nu + nx, nu + nx + 1, min(ng, nu)
+            calls = [
+                ("gemm_nt", 0, m, nxp1, nxp1, 2 * m * nxp1 * nxp1),
+                ("syrk_ln_mn", 1, m, n, nxp1, n * n * nxp1),
+                ("syrk_ln_mn", 1, m, n, ni, n * n * ni),
+                ("gemm_nt", 0, m - r, n, r, 2 * (m - r) * n * r),
+                ("syrk_ln_mn", 1, m - r, n - r, r, (m - r) * (n - r) * r),
+                ("potrf_l_mn", 2, nu - r + nx + 1, nu - r, 0, (nu - r) ** 3 / 3 + (nx + 1) * (nu - r) ** 2),
+                ("syrk_ln_mn", 1, nx + 1, nx, nu - r, nx * nx * (nu - r)),
+            ]
+            for name, kind, a, b, c, flops in calls:
+                if min(a, b) <= 0 or (kind != 2 and c <= 0):
+                    continue
+                key = (kind, a, b, c)
+                if key not in cache:
+                    cache[key] = kernels.wbmpc_kernel_seconds(kind, a, b, c, repeats)
+                seconds = cache[key]
+                total_s += seconds
+                rates.append({"stage": i, "kernel": name, "size": [a, b, c], "gflops": flops / seconds / 1e9})
+        return {"kernels": rates, "factorisation_kernels_s": total_s}
+
+
 def replay(mpc, direct, ticks: list[RecordedTick]) -> dict:
     """Solver calls on identical inputs: the plugin's ``nlpsol``, the direct driver from the same start
     (primal warm, Fatrop's dual start) and the direct driver primal-dual warm started from its previous
@@ -307,6 +401,8 @@ def main(argv: list[str] | None = None) -> dict:
         direct = DirectFatrop(plugin_mpc.ocp, tol=cfg.tol, max_iter=cfg.max_iter, flags=flags, progress=False)
         variants[" ".join(flags)] = (plugin_mpc, direct_mpc, direct)
     ticks = record_ticks(next(iter(variants.values()))[0], args.duration)
+    layouts = next(iter(variants.values()))[2].layouts
+    kernels = blasfeo_kernel_rates(layouts)  # before the timed rounds; hot caches: BLASFEO's best case
     started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
     load_before = list(os.getloadavg())
     rounds: dict[str, list] = {name: [] for name in variants}
@@ -325,7 +421,8 @@ def main(argv: list[str] | None = None) -> dict:
         "load_average_before": load_before,
         "load_average_after": list(os.getloadavg()),
         "ticks": len(ticks),
-        "riccati_flops_per_factorisation": riccati_flops(next(iter(variants.values()))[2].layouts)["total"],
+        "riccati_flops_per_factorisation": riccati_flops(layouts)["total"],
+        "blasfeo_kernels_of_one_factorisation": kernels,
         "variants": {
             name: {
                 "rounds": rounds[name],
