@@ -363,6 +363,44 @@ def closed_loops(plugin_mpc, direct_mpc, duration: float) -> dict:
     return out
 
 
+def summary_table(result: dict) -> str:
+    """A markdown table of a benchmark result (rounds pooled by their means): per variant and solver, the
+    solver call, the MPC's solve and whole tick [ms], iterations."""
+    lines = [
+        "| flags | solver | solver call mean / p95 [ms] | MPC solve mean / p95 [ms] "
+        "| whole tick mean / p95 [ms] | iterations | closed loop solve mean / p95 [ms] |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def pooled(rounds, *path):
+        values = []
+        for r in rounds:
+            x = r
+            for key in path:
+                x = x[key]
+            values.append(x)
+        return float(np.mean(values))
+
+    for flags, variant in result["variants"].items():
+        rounds = variant["rounds"]
+        for calls, mpc in (("plugin", "plugin"), ("direct_primal", None), ("direct_pd", "direct")):
+            call = f"{pooled(rounds, 'solver_calls', calls, 'mean_ms'):.2f} / "
+            call += f"{pooled(rounds, 'solver_calls', calls, 'p95_ms'):.2f}"
+            iterations = pooled(rounds, "solver_calls", calls, "iterations_mean")
+            if mpc is None:
+                lines.append(f"| {flags} | direct, primal warm | {call} | | | {iterations:.2f} | |")
+                continue
+            solve = f"{pooled(rounds, 'whole_ticks', mpc, 'per_solve', 'mean_ms'):.2f} / "
+            solve += f"{pooled(rounds, 'whole_ticks', mpc, 'per_solve', 'p95_ms'):.2f}"
+            tick = f"{pooled(rounds, 'whole_ticks', mpc, 'per_tick', 'mean_ms'):.2f} / "
+            tick += f"{pooled(rounds, 'whole_ticks', mpc, 'per_tick', 'p95_ms'):.2f}"
+            loop = f"{pooled(rounds, 'closed_loop', mpc, 'solve', 'mean_ms'):.2f} / "
+            loop += f"{pooled(rounds, 'closed_loop', mpc, 'solve', 'p95_ms'):.2f}"
+            label = "plugin (casadi nlpsol)" if mpc == "plugin" else "direct, primal-dual warm"
+            lines.append(f"| {flags} | {label} | {call} | {solve} | {tick} | {iterations:.2f} | {loop} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(
         prog="python -m wbmpc.studies.direct_fatrop", description=__doc__.splitlines()[0]
@@ -434,7 +472,7 @@ def main(argv: list[str] | None = None) -> dict:
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=1) + "\n")
-    print(json.dumps(result, indent=1))
+    print(summary_table(result))
     return result
 
 
