@@ -147,6 +147,10 @@ def test_bad_inputs_raise_before_solving(setup):
         direct.solve(tick.p, tick.x0, lam_g0=np.zeros(mpc.ocp.n_constraints))
     with pytest.raises(ValueError, match="Fatrop option"):
         direct.set_option("no_such_option", 1.0)
+    with pytest.raises(ValueError, match="must be a wbmpc.ocp.OCP"):
+        DirectFatrop("not an OCP")
+    with pytest.raises(ValueError, match="flags must be a list"):
+        DirectFatrop(mpc.ocp, flags="-O1")
 
 
 def test_iteration_cap_is_a_named_failure(setup):

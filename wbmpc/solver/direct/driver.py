@@ -79,7 +79,10 @@ class DirectFatrop:
         progress: Print build progress.
 
     Raises:
-        ValueError: a tolerance <= 0, an iteration cap < 1, a library that does not load.
+        ValueError: not an OCP, flags that are not strings, a tolerance or bound push <= 0, an iteration
+            cap < 1, a library that does not load or a driver that cannot be created (the reason).
+        FileNotFoundError, RuntimeError: the build's (no Fatrop in the wheel or no compiler; a compiler
+            error).
     """
 
     def __init__(
@@ -93,6 +96,9 @@ class DirectFatrop:
         library: Path | None = None,
         progress: bool = True,
     ):
+        if not isinstance(ocp, OCP):
+            raise ValueError(f"ocp must be a wbmpc.ocp.OCP, got {ocp!r}")
+        flags = checks.names("flags", flags, unique=False)
         checks.number("tol", tol, low=0.0, low_open=True)
         checks.integer("max_iter", max_iter, low=1)
         checks.number("bound_push", bound_push, low=0.0, low_open=True)
