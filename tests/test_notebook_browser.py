@@ -448,12 +448,6 @@ def _check_snapshot_draws_the_robot(page, index: int) -> None:
     assert share > 0.01, f"cell {index}: the robot ({meshes} meshes) covers {share:.1%} of its snapshot"
 
 
-@pytest.mark.xfail(
-    raises=AssertionError,  # not a timeout
-    strict=True,
-    reason="notebook 00 calls Viewer.notebook_view, whose snapshot is a data: URL of 5-10 MB that Chromium "
-    "blocks (2 MiB URL limit); wbmpc.viz.snapshot.notebook_view (srcdoc) shows it: remove this mark then",
-)
 def test_saved_notebook_shows_the_robot_without_its_kernel(saved, lab, browser):
     """Reopened (not run) after its kernel and meshcat servers are gone, each 3-D cell of the saved notebook
     still shows the robot: the live view fails to connect, the static snapshot under it draws the scene."""
@@ -470,13 +464,6 @@ def test_saved_notebook_shows_the_robot_without_its_kernel(saved, lab, browser):
     page.close()
 
 
-@pytest.mark.xfail(
-    raises=AssertionError,
-    strict=True,
-    reason="JupyterLab drops the iframes of Viewer.notebook_view from an untrusted notebook (saved "
-    "elsewhere, e.g. by nbclient or a colleague); wbmpc.viz.snapshot.notebook_view adds an <img>, which "
-    "stays: remove this mark when notebook 00 uses it",
-)
 def test_untrusted_saved_notebook_shows_the_robot(saved, lab, browser):
     """The same saved notebook opened where JupyterLab does not trust it (a copy with one edit, as a notebook
     received from elsewhere): its 3-D cells still show the robot, as a snapshot or an image."""

@@ -230,12 +230,6 @@ def test_saved_quickstart_keeps_a_static_scene_of_the_robot(saved_quickstart):
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="notebook 00 calls Viewer.notebook_view, which puts the 5-10 MB snapshot page in a data: URL, "
-    "beyond Chromium's 2 MiB URL limit (about:blank#blocked); wbmpc.viz.snapshot.notebook_view (srcdoc) "
-    "fixes it: remove this mark then",
-)
 def test_saved_quickstart_snapshot_loads_in_chromium(saved_quickstart):
     """Chromium loads each saved snapshot: inline (srcdoc) or in a data: URL within its 2 MiB limit."""
     blocked = {i: chromium_blocked(c) for i, c in scene_cells(saved_quickstart) if chromium_blocked(c)}

@@ -16,8 +16,6 @@ the box swept by the base and stands back far enough for the whole motion
 
 from __future__ import annotations
 
-import base64
-import html
 import io
 import math
 import time
@@ -114,36 +112,26 @@ class Viewer:
         return self.meshcat.jupyter_cell(height=height)
 
     def notebook_view(self, height: int = 400, snapshot: bool = True):
-        """The live scene for a notebook cell, with a static snapshot saved along with the notebook.
+        """The live scene for a notebook cell, with a picture and a static snapshot saved with the notebook.
 
         The live view is an IFrame on the meshcat server: it follows every later change of the scene
-        (re-solves, replays) but shows nothing once the kernel is gone. Under it, folded, is the scene as it
-        is now as a self-contained page (:meth:`static_html`, loaded only when unfolded), so a saved and
-        reopened notebook still shows the robot. Make it the cell's last expression.
+        (re-solves, replays) but shows nothing once the kernel is gone. Under it are a picture of the scene
+        as it is now (an ``<img>``, which JupyterLab keeps in an untrusted notebook) and, folded, the scene
+        as a self-contained page (:meth:`static_html` in ``srcdoc``, which Chromium loads where a data: URL
+        of this size is refused), so a saved and reopened notebook still shows the robot
+        (:func:`wbmpc.viz.snapshot.notebook_view`). Make it the cell's last expression.
 
         Args:
             height: Height of each view [px].
-            snapshot: Add the static snapshot.
+            snapshot: Add the picture and the static snapshot.
 
         Returns:
             An :class:`IPython.display.HTML` object.
         """
-        from IPython.display import HTML
+        from wbmpc.viz import snapshot as snapshots
 
         self._check_open()
-        parts = [
-            f'<iframe class="wbmpc-live-scene" src="{html.escape(self.url)}" width="100%" height="{height}" '
-            'style="border: 0"></iframe>'
-        ]
-        if snapshot:
-            page = base64.b64encode(self.static_html().encode("utf-8")).decode("ascii")
-            parts.append(
-                "<details><summary>static snapshot of this scene (saved with the notebook, opens without the "
-                "kernel)</summary>"
-                f'<iframe class="wbmpc-static-scene" loading="lazy" src="data:text/html;base64,{page}" '
-                f'width="100%" height="{height}" style="border: 0"></iframe></details>'
-            )
-        return HTML(f'<div class="wbmpc-scene">{"".join(parts)}</div>')
+        return snapshots.notebook_view(self, height, snapshot)
 
     def static_html(self) -> str:
         """The current scene (with its animation, if any) as a self-contained HTML page."""
