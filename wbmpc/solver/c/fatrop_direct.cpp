@@ -40,6 +40,7 @@ extern "C" {
 #include <limits>
 #include <memory>
 #include <string>
+#include <unordered_set>
 #include <vector>
 
 extern "C" {
@@ -79,8 +80,10 @@ enum Which { RES = 0, JAC = 1, COST = 2, GRAD = 3, HESS = 4, N_WHICH = 5 };
 struct Output {
     int rows = 0, cols = 0;
     bool dense = true;
-    std::vector<int> index;  // dense position of each nonzero
+    std::vector<int> index;     // dense (column-major) position of each nonzero
+    std::vector<int> row, col;  // row and column of each nonzero
     std::vector<double> nz;
+    size_t size() const { return dense ? static_cast<size_t>(rows) * cols : index.size(); }
 };
 
 struct Generated {
@@ -105,8 +108,14 @@ struct Generated {
             if (o.dense) continue;
             o.nz.assign(nnz, 0.0);
             o.index.resize(nnz);
+            o.row.resize(nnz);
+            o.col.resize(nnz);
             for (int c = 0; c < o.cols; ++c)
-                for (wbmpc_int j = colind[c]; j < colind[c + 1]; ++j) o.index[j] = static_cast<int>(row[j]) + o.rows * c;
+                for (wbmpc_int j = colind[c]; j < colind[c + 1]; ++j) {
+                    o.index[j] = static_cast<int>(row[j]) + o.rows * c;
+                    o.row[j] = static_cast<int>(row[j]);
+                    o.col[j] = c;
+                }
         }
     }
 };
@@ -135,8 +144,10 @@ struct Stage {
     std::vector<double> res_at, jac_at;
     bool res_valid = false, jac_valid = false;
     std::vector<double> F, g, h;          // residuals
-    std::vector<double> F_t, G_t, H_t;    // transposed Jacobians, (nu+nx) x rows, column-major
-    std::vector<double> hess, grad;
+    // Transposed Jacobians ((nu+nx) x rows) and the Hessian as the generated code writes them: dense
+    // column-major, or their nonzeros (written into Fatrop's matrices by to_matrix).
+    std::vector<double> F_t, G_t, H_t, hess;
+    std::vector<double> grad;
 };
 
 class Problem;
@@ -220,11 +231,14 @@ public:
         arg[2] = p.data();
         arg[3] = stage_s(&st - stages.data());
         for (int i = 0; i < n_extra; ++i) arg[4 + i] = extra[i];
-        // Sparse outputs go to their nonzero buffers first (the generated code writes nonzeros only).
-        for (int i = 0; i < n_out; ++i) work.res[i] = g.outputs[i].dense ? out[i] : g.outputs[i].nz.data();
+        // Matrices (JAC, HESS) are written as generated, into the stage's buffers; vectors that are sparse go to
+        // their nonzero buffers first and are scattered into the zero-initialised targets.
+        const bool raw = which == JAC || which == HESS;
+        for (int i = 0; i < n_out; ++i)
+            work.res[i] = raw || g.outputs[i].dense ? out[i] : g.outputs[i].nz.data();
         if (g.eval(arg, work.res.data(), work.iw.data(), work.w.data(), 0))
             throw std::runtime_error("a generated stage function failed");
-        for (int i = 0; i < n_out; ++i) {
+        for (int i = 0; i < n_out && !raw; ++i) {
             const Output &o = g.outputs[i];
             if (o.dense) continue;
             double *target = out[i];
@@ -259,6 +273,20 @@ public:
         }
         return st;
     }
+    // One output of a generated matrix function into Fatrop's BLASFEO matrix (top rows; the last row is
+    // Fatrop's). Sparse: each nonzero in place. Fatrop allocates its matrices zeroed and writes only their last
+    // row, so the structural zeros stay 0; a matrix seen for the first time is zeroed anyway.
+    std::unordered_set<const MAT *> zeroed;
+    void to_matrix(const Output &o, const std::vector<double> &data, MAT *res) {
+        if (o.rows == 0 || o.cols == 0) return;
+        if (o.dense) {
+            blasfeo_pack_dmat(o.rows, o.cols, const_cast<double *>(data.data()), o.rows, res, 0, 0);
+            return;
+        }
+        if (zeroed.insert(res).second) blasfeo_dgese(o.rows, o.cols, 0.0, res, 0, 0);
+        for (size_t j = 0; j < o.row.size(); ++j) BLASFEO_DMATEL(res, o.row[j], o.col[j]) = data[j];
+    }
+    const Output &output(const Stage &st, Which which, int i) const { return functions[st.kind][which].outputs[i]; }
     void invalidate() {
         for (Stage &st : stages) st.res_valid = st.jac_valid = false;
     }
@@ -275,7 +303,7 @@ Index WbmpcOcp::eval_BAbt(const Scalar *, const Scalar *inputs_k, const Scalar *
                           const Index k) {
     // The last row (b_k^T) is Fatrop's own (ocp_abstract.hpp): only [B^T; A^T] is written.
     Stage &st = problem_->jacobians(k, inputs_k, states_k);
-    if (st.n_dyn) blasfeo_pack_dmat(st.nu + st.nx, st.n_dyn, st.F_t.data(), st.nu + st.nx, res, 0, 0);
+    problem_->to_matrix(problem_->output(st, JAC, 0), st.F_t, res);
     return 0;
 }
 
@@ -288,20 +316,19 @@ Index WbmpcOcp::eval_RSQrqt(const Scalar *objective_scale, const Scalar *inputs_
                               lam_eq_ineq_k ? lam_eq_ineq_k : zeros};
     double *out[1] = {st.hess.data()};
     problem_->call(st, HESS, inputs_k, states_k, extra, 4, out, 1);
-    const int n = st.nu + st.nx;
-    if (n) blasfeo_pack_dmat(n, n, st.hess.data(), n, res, 0, 0);
+    problem_->to_matrix(problem_->output(st, HESS, 0), st.hess, res);
     return 0;
 }
 
 Index WbmpcOcp::eval_Ggt(const Scalar *inputs_k, const Scalar *states_k, MAT *res, const Index k) {
     Stage &st = problem_->jacobians(k, inputs_k, states_k);
-    if (st.n_eq) blasfeo_pack_dmat(st.nu + st.nx, st.n_eq, st.G_t.data(), st.nu + st.nx, res, 0, 0);
+    problem_->to_matrix(problem_->output(st, JAC, 1), st.G_t, res);
     return 0;
 }
 
 Index WbmpcOcp::eval_Ggt_ineq(const Scalar *inputs_k, const Scalar *states_k, MAT *res, const Index k) {
     Stage &st = problem_->jacobians(k, inputs_k, states_k);
-    if (st.n_ineq) blasfeo_pack_dmat(st.nu + st.nx, st.n_ineq, st.H_t.data(), st.nu + st.nx, res, 0, 0);
+    problem_->to_matrix(problem_->output(st, JAC, 2), st.H_t, res);
     return 0;
 }
 
@@ -425,6 +452,22 @@ void WarmInitializer::initialize() {
     ipdata_->trial_iterate().set_mu(pb.mu0);
 }
 
+// BLASFEO_DMATEL (the header's panel-major element access) must address what blasfeo_pack_dmat writes in
+// the library the process runs on (the native and generic builds share the panel size; checked anyway).
+void check_matrix_layout() {
+    const int m = 11, n = 7;
+    std::vector<double> a(m * n);
+    for (int i = 0; i < m * n; ++i) a[i] = i + 1.0;
+    blasfeo_dmat mat;
+    blasfeo_allocate_dmat(m, n, &mat);
+    blasfeo_pack_dmat(m, n, a.data(), m, &mat, 0, 0);
+    bool same = true;
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < m; ++i) same = same && BLASFEO_DMATEL(&mat, i, j) == a[i + m * j];
+    blasfeo_free_dmat(&mat);
+    if (!same) throw std::runtime_error("BLASFEO's matrix layout differs from its header's (BLASFEO_DMATEL)");
+}
+
 }  // namespace
 
 // --- C API --------------------------------------------------------------------------------------------------
@@ -473,10 +516,6 @@ void *wbmpc_direct_create(int K, const int *nx, const int *nu, const int *n_dyn,
             st.F.assign(st.n_dyn, 0.0);
             st.g.assign(st.n_eq, 0.0);
             st.h.assign(st.n_ineq, 0.0);
-            st.F_t.assign(static_cast<size_t>(n) * st.n_dyn, 0.0);
-            st.G_t.assign(static_cast<size_t>(n) * st.n_eq, 0.0);
-            st.H_t.assign(static_cast<size_t>(n) * st.n_ineq, 0.0);
-            st.hess.assign(static_cast<size_t>(n) * n, 0.0);
             st.grad.assign(n, 0.0);
             max_size = std::max<size_t>({max_size, static_cast<size_t>(n), static_cast<size_t>(st.n_dyn),
                                          static_cast<size_t>(st.n_eq), static_cast<size_t>(st.n_ineq)});
@@ -516,6 +555,13 @@ void *wbmpc_direct_create(int K, const int *nx, const int *nu, const int *n_dyn,
                                                  ": generated output size differs from the layout");
                 }
         }
+        for (Stage &st : pb->stages) {  // the matrix buffers in the generated format (dense or nonzeros)
+            st.F_t.assign(pb->output(st, JAC, 0).size(), 0.0);
+            st.G_t.assign(pb->output(st, JAC, 1).size(), 0.0);
+            st.H_t.assign(pb->output(st, JAC, 2).size(), 0.0);
+            st.hess.assign(pb->output(st, HESS, 0).size(), 0.0);
+        }
+        check_matrix_layout();
         if (pb->stage_params.outputs[0].rows * pb->stage_params.outputs[0].cols != static_cast<int>(pb->S.size()))
             throw std::runtime_error("the stage-parameter function has another size than n_s x (K - 1)");
         pb->work.arg.resize(std::max<size_t>(pb->work.arg.size(), 8));
