@@ -1069,3 +1069,21 @@ def test_the_contact_plan_is_the_configured_gait_or_the_one_given(robot):
     assert not np.array_equal(trot_flags, walk_flags)
     np.testing.assert_array_equal(mpc.contact_plan(times), trot_flags)
     np.testing.assert_array_equal(mpc.contact_plan(times, walk), walk_flags)
+
+
+def test_a_push_aborts_the_swings_of_the_commanded_gait(robot):
+    """The configured gait stands, the commands trot: a push just after lift-off aborts the swings of the
+    trot (the gait walked), not those of the configured stand (it has none)."""
+    mpc = _mpc(robot, gait="stand", n_nodes=6)
+    q, t = robot.q_nominal, 0.02
+    walk = Commands(gait=make_gait("trot"))
+    swinging = ~walk.gait.sample(np.array([t])).contact[:, 0]
+    assert swinging.sum() == 2
+    pushed = np.zeros(robot.nv)
+    pushed[1] = 0.6
+    params = mpc.parameters(q, pushed, t, walk)
+    mpc.previous = mpc.hold_plan(q, 0.0, params)  # a plan at rest: the measured 0.6 m/s is a push
+    out = mpc.recovery_parameters(params, q, pushed, t, walk)
+    assert sorted(mpc.aborted_swings) == list(np.flatnonzero(swinging))
+    assert mpc.stats["swing_aborts"] == 2
+    assert np.all(out["contact"][swinging, 0] == 1.0) and np.all(params["contact"][swinging, 0] == 0.0)
