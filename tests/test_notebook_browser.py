@@ -408,9 +408,13 @@ def _open(browser, base: str, token: str, name: str):
     failed = []
     page.on("requestfailed", lambda r: failed.append((r.url, r.failure)))
     page.goto(f"{base}/lab/tree/{name}?token={token}", timeout=120_000)
+    # The workspace JupyterLab restores may bring back a notebook opened earlier (the Run All one) as the
+    # current tab for a while: wait for this notebook's own tab.
     page.wait_for_function(
-        "() => { const w = window.jupyterapp && window.jupyterapp.shell.currentWidget;"
-        " return w && w.context && w.context.isReady && w.content.widgets.length > 0; }",
+        "(name) => { const w = window.jupyterapp && window.jupyterapp.shell.currentWidget;"
+        " return w && w.context && w.context.isReady && w.context.path.endsWith(name)"
+        " && w.content.widgets.length > 0; }",
+        arg=name,
         timeout=120_000,
     )
     return page, failed
