@@ -116,22 +116,14 @@ SCENE_COMMAND = re.compile(r'fetch\("data:application/octet-binary;base64,([A-Za
 
 def execute_quickstart(folder: Path) -> Path:
     """Notebook 00 run in quick mode (a kernel of this interpreter), saved with its outputs in ``folder``."""
-    import os
 
     from nbclient import NotebookClient
 
     nb = _read(QUICKSTART)
-    env = dict(os.environ, WBMPC_QUICK="1", MPLBACKEND="Agg")
-    old = {k: os.environ.get(k) for k in ("WBMPC_QUICK", "MPLBACKEND")}
-    os.environ.update({k: env[k] for k in old})  # the kernel inherits this process's environment
-    try:
+    with pytest.MonkeyPatch.context() as patch:  # the kernel inherits this process's environment
+        patch.setenv("WBMPC_QUICK", "1")
+        patch.setenv("MPLBACKEND", "Agg")
         NotebookClient(nb, timeout=600, resources={"metadata": {"path": str(QUICKSTART.parent)}}).execute()
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     path = folder / QUICKSTART.name
     nbformat.write(nb, path)
     return path
