@@ -180,7 +180,11 @@ class FixedStepMPC(WholeBodyMPC):
 
     def _run_solver(self, solver, args: dict):
         w, lam_g, report = super()._run_solver(solver, args)
-        if report["success"] and isinstance(solver, FixedStepNlpsol):
-            if solver.stats().get("fixed_steps_accepted"):
-                report["status"] = FIXED_STEPS_STATUS
+        if not isinstance(solver, FixedStepNlpsol):
+            return w, lam_g, report
+        if report["success"] and solver.stats().get("fixed_steps_accepted"):
+            report["status"] = FIXED_STEPS_STATUS
+        elif not report["success"] and w is not None and not np.all(np.isfinite(w)):
+            report["status"] = "non_finite_solution"
+            report["reason"] = "the fixed-step iterate has NaN or inf"
         return w, lam_g, report
