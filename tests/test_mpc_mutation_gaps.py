@@ -175,6 +175,7 @@ def test_a_warm_failure_then_a_cold_raise_returns_the_previous_plan_with_both_re
         "exceptions": 1,
         "cold_retries": 1,
         "holds": 0,
+        "library_switches": 0,
     }
 
 

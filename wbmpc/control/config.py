@@ -22,6 +22,7 @@ from wbmpc.ocp.gait import (
     make_gait,
 )
 from wbmpc.ocp.time_grid import node_times
+from wbmpc.solver.codegen import RELEASE_FLAGS
 from wbmpc.solver.nlpsol import SOLVERS, TOL, WARM_MAX_ITER, WARM_MU_INIT
 
 DT_BOUNDS = (1e-4, 1.0)  # [s] sane range of the MPC's time steps
@@ -208,7 +209,11 @@ class SolverSettings:
         solver: ``"fatrop"`` or ``"ipopt"``.
         compiled: Solve with the generated and compiled NLP functions (Fatrop only; built once and cached,
             see :mod:`wbmpc.solver.codegen`).
-        compile_flags: gcc flags of the compiled library.
+        compile_flags: gcc flags of the compiled library built first (and of the direct driver's).
+        release_flags: gcc flags of the release library that replaces it: built from the same C in a
+            background process at the lowest priority while the first library serves, switched to between two
+            solves when ready, used from the start once cached (:mod:`wbmpc.solver.release`; left out in quick
+            mode). ``None``: no release library.
         tol: Solver tolerance (paper: 1e-3).
         max_iter: Iteration cap of a warm-started solve.
         cold_max_iter: Iteration cap of a cold start (the first solve).
@@ -226,6 +231,7 @@ class SolverSettings:
     solver: str = "fatrop"
     compiled: bool = False
     compile_flags: tuple[str, ...] = ("-O1",)
+    release_flags: tuple[str, ...] | None = RELEASE_FLAGS
     tol: float = TOL
     max_iter: int = WARM_MAX_ITER
     cold_max_iter: int = 200
@@ -257,6 +263,9 @@ class SolverSettings:
             raise ValueError("SolverSettings.direct needs solver='fatrop' (it is a Fatrop driver)")
         checks.names("SolverSettings.compile_flags", self.compile_flags, unique=False)
         object.__setattr__(self, "compile_flags", tuple(self.compile_flags))
+        if self.release_flags is not None:
+            checks.names("SolverSettings.release_flags", self.release_flags, unique=False)
+            object.__setattr__(self, "release_flags", tuple(self.release_flags))
 
 
 @dataclass

@@ -39,6 +39,7 @@ from wbmpc.ocp.gait import (
 from wbmpc.ocp.time_grid import geometric_time_steps, interp_rows, node_times
 from wbmpc.solver import codegen
 from wbmpc.solver.nlpsol import make_nlpsol, solver_options
+from wbmpc.solver.release import ReleaseUpgrade
 from wbmpc.solver.statuses import exception_status, solver_status
 
 __all__ = [
@@ -109,10 +110,12 @@ class WholeBodyMPC:
         self.previous: MPCSolution | None = None
         self.stats = {"solves": 0, "failures": 0, "exceptions": 0, "cold_retries": 0, "holds": 0}
         self.stats["swing_aborts"] = 0
+        self.stats["library_switches"] = 0
         self.push_recovery = PushRecovery(robot)  # swings aborted after a push (MPCConfig.kick_recovery)
         self.prechecks = Prechecks(robot)  # physical checks of each solve request, with their own data
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
+        self.release: ReleaseUpgrade | None = None  # the compiled library's flags, its release build
         self.last_inputs: dict | None = None
         self.verbose = True
 
@@ -164,10 +167,37 @@ class WholeBodyMPC:
         library = None
         if cfg.compiled:
             if self.compiled_nlp is None:
-                self.compiled_nlp = codegen.build(self.ocp, tuple(cfg.compile_flags), progress=self.verbose)
+                self.compiled_nlp = codegen.build(self.ocp, self.library_flags(), progress=self.verbose)
+                self.release.start()  # the release library, in the background (if wanted and not cached)
             library = self.compiled_nlp.library
         options = self.solver_options(cold, max_iter)
         return make_nlpsol(name, cfg.solver, self.ocp.nlp, options, library, n_nodes=self.ocp.n_nodes)
+
+    def library_flags(self) -> tuple[str, ...]:
+        """The gcc flags of the compiled library in use: ``SolverSettings.release_flags`` once that library
+        is cached, else ``compile_flags`` (:class:`wbmpc.solver.release.ReleaseUpgrade`)."""
+        if self.release is None:
+            cfg = self.solver_settings
+            kind = "direct" if cfg.direct else "nlp"
+            self.release = ReleaseUpgrade(self.ocp, kind, cfg.compile_flags, cfg.release_flags)
+        return self.release.flags
+
+    def _switch_to_release(self) -> float:
+        """Rebuild the solvers on the release library once its background build is done; the time [s]."""
+        if self.release is None or not self.release.poll():
+            return 0.0
+        start = time.perf_counter()
+        built = list(self._solvers)
+        self._solvers.clear()
+        self.compiled_nlp = None
+        if self.solver_settings.direct:
+            from wbmpc.solver.direct.adapter import switch_driver
+
+            switch_driver(self)  # the warm duals carry over
+        for cold, max_iter in built:
+            self._solver(cold, max_iter)
+        self.stats["library_switches"] += 1
+        return time.perf_counter() - start
 
     # --- parameters -----------------------------------------------------------------------------------------
     def time_steps(self) -> np.ndarray:
@@ -373,6 +403,7 @@ class WholeBodyMPC:
             ValueError: wrong shape or NaN in the state or the commands, a zero quaternion, an upward
                 end-effector force the stance feet cannot balance (bad input, not a solver failure).
         """
+        switch_s = self._switch_to_release()  # between two solves, as a robot's loop would see it
         start = time.perf_counter()
         t = checks.number("t", t, unit="s")
         if commands is not None and not isinstance(commands, Commands):
@@ -454,6 +485,8 @@ class WholeBodyMPC:
             plan = self.previous = self._solution(w, lam_g, q_hat, t, p, params, report)
         # The whole call, Python included (solve_time is the solver's share).
         plan.timings = {**plan.timings, "total": time.perf_counter() - start}
+        if switch_s:
+            plan.timings["library_switch"] = switch_s
         return plan
 
     def hold_plan(self, q_hat: np.ndarray, t: float, params: dict, report: dict | None = None) -> MPCSolution:

@@ -401,6 +401,45 @@ def build(
     """
     key, description = cache_key(ocp, tuple(flags))
     folder = Path(directory or cache_dir()) / key
+
+    def generate(tmp: Path) -> Path:
+        if progress:
+            print(f"[wbmpc.solver.codegen] generating C for {ocp.n_nodes} nodes ({key}) ...", flush=True)
+        generator = ca.CodeGenerator("wbmpc_nlp.c", {"with_header": True})
+        for function in nlp_functions(ocp):
+            generator.add(function)
+        generator.generate(str(tmp) + os.sep)
+        return tmp / "wbmpc_nlp.c"
+
+    return build_in(folder, key, description, tuple(flags), generate, progress, force)
+
+
+def cached(ocp: OCP, flags: tuple[str, ...], directory: Path | None = None) -> CompiledNLP | None:
+    """The valid cached library of ``ocp`` built with ``flags``, or ``None`` (nothing is built)."""
+    key, _ = cache_key(ocp, tuple(flags))
+    folder = Path(directory or cache_dir()) / key
+    library, record = folder / "libwbmpc_nlp.so", folder / "build.json"
+    if not _valid(library, record):
+        return None
+    info = json.loads(record.read_text())
+    return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], False)
+
+
+def build_in(
+    folder: Path,
+    key: str,
+    description: dict,
+    flags: tuple[str, ...],
+    generate,
+    progress: bool = True,
+    force: bool = False,
+) -> CompiledNLP:
+    """Compile the C that ``generate(tmp) -> c_file`` writes into the key folder ``folder``, or reuse it.
+
+    The part of :func:`build` that needs no OCP, so that a background process can compile the C an earlier
+    build kept (``folder``'s ``wbmpc_nlp.c``) with other flags (:mod:`wbmpc.solver.release`).
+    """
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     library, record = folder / "libwbmpc_nlp.so", folder / "build.json"
     with open(folder / ".lock", "w") as lock:
@@ -410,19 +449,14 @@ def build(
             info = json.loads(record.read_text())
             return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], False)
         start = time.perf_counter()
-        if progress:
-            print(f"[wbmpc.solver.codegen] generating C for {ocp.n_nodes} nodes ({key}) ...", flush=True)
         with tempfile.TemporaryDirectory(prefix=f"{_TMP_PREFIX}{os.getpid()}-", dir=folder) as tmp:
             tmp = Path(tmp)
-            generator = ca.CodeGenerator("wbmpc_nlp.c", {"with_header": True})
-            for function in nlp_functions(ocp):
-                generator.add(function)
-            generator.generate(str(tmp) + os.sep)
-            c_file = tmp / "wbmpc_nlp.c"
+            c_file = Path(generate(tmp))
             c_bytes = c_file.stat().st_size
             peak_mb = _compile(c_file, tmp / "lib.so", flags, progress, c_bytes)
-            shutil.copy(c_file, folder / "wbmpc_nlp.c")
-            shutil.copy(tmp / "wbmpc_nlp.h", folder / "wbmpc_nlp.h")
+            if c_file.resolve() != (folder / "wbmpc_nlp.c").resolve():
+                shutil.copy(c_file, folder / "wbmpc_nlp.c")
+                shutil.copy(c_file.with_suffix(".h"), folder / "wbmpc_nlp.h")
             os.replace(tmp / "lib.so", library)  # atomic: readers never see a half-written library
         build_s = time.perf_counter() - start
         record.write_text(

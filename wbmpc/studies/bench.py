@@ -73,7 +73,8 @@ def run_case(
 
     config = MPCConfig(gait=make_gait("trot"))
     flags = {} if compile_flags is None else {"compile_flags": tuple(compile_flags)}
-    solver_settings = SolverSettings(solver=solver, compiled=compiled, **flags)
+    # The flags measured: no switch to a background release library mid-run.
+    solver_settings = SolverSettings(solver=solver, compiled=compiled, release_flags=None, **flags)
     settings = OCPSettings(
         n_nodes=nodes,
         formulation=formulation,

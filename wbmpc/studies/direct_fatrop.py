@@ -426,7 +426,7 @@ def main(argv: list[str] | None = None) -> dict:
     robot = load_b1_z1()
 
     def make(direct: bool, flags: tuple[str, ...]):
-        solver = SolverSettings(compiled=True, compile_flags=flags, direct=direct)
+        solver = SolverSettings(compiled=True, compile_flags=flags, direct=direct, release_flags=None)
         mpc = WholeBodyMPC(robot, OCPSettings(n_nodes=15), MPCConfig(), solver)
         mpc.verbose = False
         mpc.prepare()  # build or load before timing

@@ -69,7 +69,10 @@ try:
 except ImportError:  # an older checkout (the baseline): the solver settings are MPCConfig fields there
     mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot"), compiled=compiled, **flags))
 else:
-    solver = SolverSettings(compiled=compiled, **flags)
+    try:  # the flags measured, no switch to a background release library mid-run
+        solver = SolverSettings(compiled=compiled, release_flags=None, **flags)
+    except TypeError:  # a checkout before the background release build
+        solver = SolverSettings(compiled=compiled, **flags)
     mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot")), solver)
 mpc.verbose = False
 mpc.prepare()  # build or load before timing

@@ -62,21 +62,15 @@ class DirectNlpsol:
         built."""
         driver = _DRIVERS.get(mpc)
         if driver is None:
-            cfg = mpc.solver_settings
             try:
-                driver = DirectFatrop(
-                    mpc.ocp,
-                    tol=cfg.tol,
-                    max_iter=cfg.max_iter,
-                    flags=tuple(cfg.compile_flags),
-                    progress=mpc.verbose,
-                )
+                driver = _new_driver(mpc)
             except (OSError, RuntimeError, ValueError) as exc:
                 warnings.warn(
                     f"the direct Fatrop driver is unavailable ({exc}); using the casadi plugin", stacklevel=3
                 )
                 return plugin_nlpsol(mpc, name, cold, max_iter)
             _DRIVERS[mpc] = driver
+            mpc.release.start()  # the release library, in the background (if wanted and not cached)
         return cls(mpc, name, cold, max_iter, driver)
 
     def __call__(self, *, x0, p, lbg=None, ubg=None, lam_g0=None, **_) -> dict:
@@ -140,6 +134,24 @@ class DirectNlpsol:
         out = self._plugin(**args)
         self._stats = {**self._plugin.stats(), "solver": "plugin", "direct_failure": failed.reason}
         return {key: np.array(value).ravel() for key, value in out.items()}
+
+
+def _new_driver(mpc) -> DirectFatrop:
+    cfg = mpc.solver_settings
+    return DirectFatrop(
+        mpc.ocp, tol=cfg.tol, max_iter=cfg.max_iter, flags=mpc.library_flags(), progress=mpc.verbose
+    )
+
+
+def switch_driver(mpc) -> DirectFatrop:
+    """Give ``mpc`` a new driver on the library of its current flags (``mpc.library_flags()``: after the
+    release library became ready), keeping the last solution's duals for the next warm start. The MPC's
+    solvers must be made again (:meth:`~wbmpc.control.mpc.WholeBodyMPC.make_solver`)."""
+    old = _DRIVERS.pop(mpc, None)
+    driver = _DRIVERS[mpc] = _new_driver(mpc)
+    if old is not None:
+        driver.last = old.last
+    return driver
 
 
 def plugin_nlpsol(mpc, name: str, cold: bool, max_iter: int | None = None):

@@ -108,6 +108,47 @@ def build(
         raise FileNotFoundError("the direct Fatrop driver needs gcc and g++ on PATH")
     key, description = cache_key(ocp, tuple(flags))
     folder = Path(directory or codegen.cache_dir()) / f"direct-{key}"
+
+    def generate(tmp: Path) -> list[Path]:
+        if progress:
+            print(f"[wbmpc.solver.direct] generating the direct Fatrop driver ({key}) ...", flush=True)
+        return _generate(ocp, tmp)
+
+    return build_in(folder, key, description, tuple(flags), generate, progress, force)
+
+
+def cached(ocp: OCP, flags: tuple[str, ...], directory: Path | None = None) -> DirectLibrary | None:
+    """The valid cached direct library of ``ocp`` built with ``flags``, or ``None`` (nothing is built)."""
+    key, _ = cache_key(ocp, tuple(flags))
+    folder = Path(directory or codegen.cache_dir()) / f"direct-{key}"
+    library, record = folder / LIBRARY_NAME, folder / "build.json"
+    if not (library.is_file() and record.is_file()):
+        return None
+    info = json.loads(record.read_text())
+    if info.get("library_sha256") != _sha256(library):
+        return None
+    return DirectLibrary(library, key, info["build_s"], False)
+
+
+def build_in(
+    folder: Path,
+    key: str,
+    description: dict,
+    flags: tuple[str, ...],
+    generate,
+    progress: bool = True,
+    force: bool = False,
+) -> DirectLibrary:
+    """Compile the sources ``generate(tmp) -> [C files]`` writes, with the driver, into ``folder``.
+
+    The part of :func:`build` that needs no OCP: the generated C is kept in ``folder/sources`` so that a
+    background process can compile it again with other flags (:mod:`wbmpc.solver.release`).
+
+    Raises:
+        RuntimeError: a compiler error (the message holds its tail).
+    """
+    lib_dir = casadi_dir()
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     library, record = folder / LIBRARY_NAME, folder / "build.json"
     with open(folder / ".lock", "w") as lock:
@@ -117,11 +158,15 @@ def build(
             if info.get("library_sha256") == _sha256(library):
                 return DirectLibrary(library, key, info["build_s"], False)
         start = time.perf_counter()
-        if progress:
-            print(f"[wbmpc.solver.direct] generating the direct Fatrop driver ({key}) ...", flush=True)
         with tempfile.TemporaryDirectory(prefix=".build-", dir=folder) as tmp:
             tmp = Path(tmp)
-            sources = _generate(ocp, tmp)
+            sources = [Path(src) for src in generate(tmp)]
+            kept = folder / "sources"
+            if kept.resolve() not in {src.parent.resolve() for src in sources}:
+                shutil.rmtree(kept, ignore_errors=True)
+                kept.mkdir()
+                for src in sources:
+                    shutil.copy(src, kept / src.name)
             objects = _compile_all(sources, tmp, tuple(flags), lib_dir)
             _run(
                 [
