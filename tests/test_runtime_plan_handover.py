@@ -126,3 +126,28 @@ def test_a_run_folder_without_its_files_is_named_with_the_command_that_writes_th
     message = r"no summary.json and no runtime_log.npz.*python -m wbmpc.runtime"
     with pytest.raises(FileNotFoundError, match=message):
         load_run(tmp_path)
+
+
+def test_the_direct_driver_in_the_worker_needs_the_compiled_library():
+    with pytest.raises(ValueError, match="direct needs compiled=True"):
+        RuntimeConfig(direct=True, compiled=False)
+
+
+def test_the_worker_recipe_solves_with_the_driver_it_is_told_and_builds_no_release_library():
+    from wbmpc.control.mpc import WholeBodyMPC
+    from wbmpc.runtime.mpc_worker import MPCRecipe
+
+    built = {}
+
+    def record(self, robot, settings, config, solver):
+        built["solver"] = solver
+        raise RuntimeError("stop before the build")
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(WholeBodyMPC, "__init__", record)
+        for direct in (False, True):
+            with pytest.raises(RuntimeError, match="stop before the build"):
+                MPCRecipe(direct=direct, max_iter=15).build()
+            solver = built["solver"]
+            assert (solver.direct, solver.compiled, solver.max_iter) == (direct, True, 15)
+            assert solver.release_flags is None  # no gcc taking a core from the loops mid-run

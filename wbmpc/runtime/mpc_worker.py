@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -45,6 +45,8 @@ class MPCRecipe:
         cold_retry: Retry a failed warm solve from a cold start in the same tick
             (:attr:`MPCConfig.cold_retry <wbmpc.control.config.MPCConfig.cold_retry>`); off by default on
             the wall clock, where it makes a failed tick last a second.
+        direct: Solve with the direct primal-dual warm-started Fatrop driver
+            (:attr:`SolverSettings.direct <wbmpc.control.config.SolverSettings.direct>`; needs ``compiled``).
     """
 
     gait: str = "stand:2,trot@0.2:6,stand:2"
@@ -54,6 +56,7 @@ class MPCRecipe:
     torque_limit_fraction: float = 0.9
     max_iter: int | None = None
     cold_retry: bool = True
+    direct: bool = False
 
     def robot(self):
         """The MPC's robot model."""
@@ -86,9 +89,10 @@ class MPCRecipe:
         from wbmpc.ocp import OCPSettings
 
         settings = OCPSettings(n_nodes=self.nodes, torque_limit_fraction=self.torque_limit_fraction)
-        solver = SolverSettings(compiled=self.compiled)
+        # No background release build on the wall clock: gcc would take a core from the loops mid-run.
+        solver = SolverSettings(compiled=self.compiled, direct=self.direct, release_flags=None)
         if self.max_iter is not None:
-            solver = SolverSettings(compiled=self.compiled, max_iter=self.max_iter)
+            solver = replace(solver, max_iter=self.max_iter)
         config = MPCConfig(gait=self.schedule(), cold_retry=self.cold_retry)
         mpc = WholeBodyMPC(self.robot(), settings, config, solver)
         mpc.verbose = False

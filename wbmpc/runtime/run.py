@@ -58,7 +58,8 @@ class RuntimeConfig:
         max_plan_age: Watchdog limit on the age of the plan in use [s]; max_overruns: overrun ticks in a row
             that trip it; max_observation_gap: seconds without a robot observation that trip it.
         nodes, compiled: The MPC; max_iter: its warm solves' iteration cap (a failed solve is not
-            published; no cold retry on the wall clock).
+            published; no cold retry on the wall clock); direct: the worker solves with the direct Fatrop
+            driver (:mod:`wbmpc.solver.direct`).
         faults: Faults to inject (:class:`~wbmpc.runtime.faults.Faults`), for tests.
         gait_schedule: The gait schedule (e.g. ``"stand:1,trot@0.2:3"``; the run lasts it, ``duration`` is
             replaced); ``None``: stand 2 s, trot at ``speed``, stand 2 s over ``duration``.
@@ -85,6 +86,7 @@ class RuntimeConfig:
     nodes: int = 15
     compiled: bool = True
     max_iter: int = 15
+    direct: bool = False
     faults: Faults = field(default_factory=Faults)
     ready_timeout: float = 900.0
     gait_schedule: str | None = None
@@ -97,6 +99,8 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.cpu_layout must be one of {CPU_LAYOUTS}, got {layout!r}")
         if not isinstance(self.faults, Faults):
             raise ValueError(f"RuntimeConfig.faults must be a Faults, got {self.faults!r}")
+        if self.direct and not self.compiled:
+            raise ValueError("RuntimeConfig.direct needs compiled=True (the direct driver is compiled)")
         if self.robot not in ("emulated", "dds"):
             raise ValueError(f"RuntimeConfig.robot must be 'emulated' or 'dds', got {self.robot!r}")
         if self.robot == "dds":
@@ -181,6 +185,7 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
         compiled=config.compiled,
         max_iter=config.max_iter,
         cold_retry=False,
+        direct=config.direct,
     )
     ctx = mp.get_context("spawn")
     stop, worker_ready = ctx.Event(), ctx.Event()
