@@ -46,6 +46,13 @@ OUTPUT = REPO_ROOT / "data" / "bench" / "newton_steps.json"
 STEPS = (1, 2)
 #: Residual groups reported (the OCP's row groups, :class:`wbmpc.ocp.inspection.ConstraintInspector`).
 EQUALITY_GROUPS = ("transition", "dynamics")
+# Outcomes kept from the experiments' case functions.
+KICK_KEYS = ("fell", "max_tilt_rad", "peak_speed_along_kick", "recovery_time_s")
+ARM_KEYS = ("fell", "ee_rms_cm", "ee_max_error_cm", "speed_m_per_s")
+
+
+def _last_p(mpc) -> np.ndarray:
+    return np.asarray(mpc.last_inputs["p"], float).ravel()  # the parameters of its last solve
 
 
 def _stats(values) -> dict:
@@ -53,11 +60,6 @@ def _stats(values) -> dict:
     if a.size == 0:
         return {"mean": None, "p95": None, "max": None, "n": 0}
     return {"mean": float(a.mean()), "p95": float(np.percentile(a, 95)), "max": float(a.max()), "n": a.size}
-
-
-def variant_names(steps=STEPS) -> list[str]:
-    """``["converged", "steps_1", ...]``."""
-    return ["converged"] + [f"steps_{k}" for k in steps]
 
 
 class NodeZero:
@@ -113,7 +115,7 @@ def recorded_ticks(direct, ticks, steps=STEPS, mu_warm: float = 1e-4) -> dict:
         ``from_converged``: 1 iteration from a tick's converged solution and duals (largest primal change).
     """
     node0 = NodeZero(direct.ocp)
-    names = variant_names(steps)
+    names = ["converged"] + [f"steps_{k}" for k in steps]
     rec = {n: {"ms": [], "it": [], "flags": {}, "tau": [], "force": [], "w": [], "res": []} for n in names}
     from_converged = []
     previous = None
@@ -212,8 +214,8 @@ def mpc_chains(mpcs: dict, ticks) -> dict:
             finite = all(np.all(np.isfinite(x)) for x in (plan.tau, plan.forces, plan.q, plan.v))
             entry["non_finite_plans"] += int(not finite)
             if ref.success and plan.success and finite:
-                tau, force = node0.torques_forces(plan.w, plan_parameters(mpcs[name]))
-                tau_c, force_c = node0.torques_forces(ref.w, plan_parameters(mpcs["converged"]))
+                tau, force = node0.torques_forces(plan.w, _last_p(mpcs[name]))
+                tau_c, force_c = node0.torques_forces(ref.w, _last_p(mpcs["converged"]))
                 entry["tau"].append(float(np.max(np.abs(tau - tau_c))))
                 entry["force"].append(float(np.max(np.abs(force - force_c))))
     return {
@@ -226,11 +228,6 @@ def mpc_chains(mpcs: dict, ticks) -> dict:
         }
         for name, e in rec.items()
     }
-
-
-def plan_parameters(mpc) -> np.ndarray:
-    """The parameter vector of ``mpc``'s last solve."""
-    return np.asarray(mpc.last_inputs["p"], float).ravel()
 
 
 # --------------------------------------------------------------------------------------------- closed loops
@@ -348,15 +345,13 @@ def closed_loops(robot, mpcs: dict, emulated_mpcs: dict | None, quick: bool = Fa
         ],
     }
     if emulated_mpcs is not None:
-        scenarios["emulated"] = [
-            ("emulated", {"gait": "stand:1,trot@0.2:2.5" if not quick else "stand:1,trot@0.2:1"})
-        ]
+        scenarios["emulated"] = [("emulated", {"gait": f"stand:1,trot@0.2:{1 if quick else 2.5:g}"})]
     out: dict[str, list] = {}
     turn = 0
     for scenario, runs in scenarios.items():
         out[scenario] = []
         for kind, case in runs:
-            row = {"case": {k: v for k, v in case.items()}}
+            row = {"case": dict(case)}
             pool = emulated_mpcs if kind == "emulated" else mpcs
             names = list(pool)
             for name in names[turn % len(names) :] + names[: turn % len(names)]:
@@ -367,16 +362,11 @@ def closed_loops(robot, mpcs: dict, emulated_mpcs: dict | None, quick: bool = Fa
                 if kind == "kick":
                     with experiments_mpc(mpc, robot):
                         outcome, result = _case_with_result(robustness_case, case)
-                    outcome = {
-                        k: outcome[k]
-                        for k in ("fell", "max_tilt_rad", "peak_speed_along_kick", "recovery_time_s")
-                    }
+                    outcome = {k: outcome[k] for k in KICK_KEYS}
                 elif kind == "arm":
                     with experiments_mpc(mpc, robot):
                         outcome, result = _case_with_result(nodes_case, case)
-                    outcome = {
-                        k: outcome[k] for k in ("fell", "ee_rms_cm", "ee_max_error_cm", "speed_m_per_s")
-                    }
+                    outcome = {k: outcome[k] for k in ARM_KEYS}
                 elif kind == "command":
                     outcome, result = _rigid_command(mpc, case["command"], case["stand"], case["trot"])
                 else:
@@ -384,16 +374,11 @@ def closed_loops(robot, mpcs: dict, emulated_mpcs: dict | None, quick: bool = Fa
                     result, _ = record_emulated_run(gait=case["gait"], robot=robot, mpc=mpc)
                     s = result.summary
                     moving = [seg for seg in s["tracking"] if any(abs(c) > 0 for c in seg["commanded"])]
-                    outcome = {
-                        "fell": bool(result.fell),
-                        "max_tilt_rad": s["max_tilt_rad"],
-                        "achieved_forward_m_per_s": moving[0]["achieved"][0] if moving else None,
-                    }
-                row[name] = {
-                    **outcome,
-                    **_loop_numbers(result, mpc, before),
-                    "wall_s": time.perf_counter() - start,
-                }
+                    forward = moving[0]["achieved"][0] if moving else None
+                    outcome = {"fell": bool(result.fell), "max_tilt_rad": s["max_tilt_rad"]}
+                    outcome["achieved_forward_m_per_s"] = forward
+                row[name] = outcome | _loop_numbers(result, mpc, before)
+                row[name]["wall_s"] = time.perf_counter() - start
             turn += 1
             out[scenario].append(row)
         for mpc in mpcs.values():
@@ -418,18 +403,10 @@ def sqp_solver(ocp, qpsol: str = "hpipm", max_iter: int = 15, convexify: str | N
         qp_options |= {"N": len(sizes["nx"]) - 1, "nx": sizes["nx"], "nu": sizes["nu"], "ng": sizes["ng"]}
     elif qpsol == "qrqp":
         qp_options |= {"print_iter": False, "print_header": False}
-    options = {
-        "qpsol": qpsol,
-        "qpsol_options": qp_options,
-        "max_iter": max_iter,
-        "tol_pr": 1e-6,
-        "tol_du": 1e-3,
-        "print_time": False,
-        "print_header": False,
-        "print_iteration": False,
-        "print_status": False,
-        "error_on_fail": False,
-    }
+    options = {"qpsol": qpsol, "qpsol_options": qp_options, "max_iter": max_iter, "tol_pr": 1e-6}
+    options |= {"tol_du": 1e-3} | dict.fromkeys(
+        ("print_time", "print_header", "print_iteration", "print_status", "error_on_fail"), False
+    )
     if convexify:
         options["convexify_strategy"] = convexify
     return ca.nlpsol("wbmpc_sqp", "sqpmethod", ocp.nlp, options)
@@ -465,12 +442,7 @@ def sqp_ticks(ocp, direct, ticks, n_ticks: int, variants: dict | None = None) ->
             if with_duals:
                 args["lam_g0"] = before.lam_g
             start = time.perf_counter()
-            try:
-                sol = solver(**args)
-            except RuntimeError as exc:
-                status = "raised: " + str(exc).strip().splitlines()[-1][:200]
-                rec["status"][status] = rec["status"].get(status, 0) + 1
-                continue
+            sol = solver(**args)  # error_on_fail off: a failed solve returns with its status
             rec["ms"].append(1e3 * (time.perf_counter() - start))
             stats = solver.stats()
             status = str(stats.get("return_status"))
