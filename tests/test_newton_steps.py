@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from wbmpc.control.fixed_steps import FixedStepMPC
 from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.ocp import OCPSettings
@@ -21,7 +22,6 @@ from wbmpc.solver.direct import DirectFatrop
 from wbmpc.solver.direct.fixed_steps import (
     FATROP_ACCEPTABLE_DEFAULTS,
     FIXED_STEPS_STATUS,
-    FixedStepMPC,
     fixed_step_solve,
     usable_iterate,
 )

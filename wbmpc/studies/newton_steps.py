@@ -10,7 +10,7 @@ case by case, so drift hits them alike):
    (:func:`wbmpc.solver.direct.fixed_steps.fixed_step_solve`). Node 0's torques [N m] and contact forces
    [N] against the converged solution, the constraint residuals (transition, inverse-dynamics (RNEA)
    rows, other equalities, inequalities), time per call [ms]. Then each MPC's own chain: a
-   :class:`~wbmpc.solver.direct.fixed_steps.FixedStepMPC` and the converged direct MPC call ``solve()`` on
+   :class:`~wbmpc.control.fixed_steps.FixedStepMPC` and the converged direct MPC call ``solve()`` on
    the recorded observations (each warm-started from its own previous plan): node 0 against the converged
    MPC's plan of the same observation, and the whole tick [ms].
 2. Closed loops (:func:`closed_loops`): the converged direct MPC and the 1- and 2-step MPCs on (a) kicks of
@@ -37,8 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+from wbmpc.control.fixed_steps import FixedStepMPC
 from wbmpc.quick import pick
-from wbmpc.solver.direct.fixed_steps import FixedStepMPC, fixed_step_solve
+from wbmpc.solver.direct.fixed_steps import fixed_step_solve
 from wbmpc.studies.direct_fatrop import cpu_name, record_ticks
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -179,7 +180,7 @@ def make_mpcs(robot, steps=STEPS, settings=None, config=None, flags=None) -> dic
     from wbmpc.ocp import OCPSettings
 
     settings = settings or OCPSettings(n_nodes=15)
-    solver = SolverSettings(compiled=True, direct=True)
+    solver = SolverSettings(compiled=True, direct=True, release_flags=None)  # one library for the whole run
     if flags is not None:
         solver = replace(solver, compile_flags=tuple(flags))
     mpcs = {"converged": WholeBodyMPC(robot, settings, config or MPCConfig(), solver)}
@@ -238,20 +239,12 @@ def experiments_mpc(mpc, robot, nodes: int = 15):
     that cache under the key the cases look up (their robot, ``nodes``, ``SolverSettings(compiled=True)``)
     for the ``with`` block, and the entry restored afterwards."""
     from wbmpc.control.mpc import SolverSettings
-    from wbmpc.studies.experiments import common
-    from wbmpc.studies.sweeps import cases
+    from wbmpc.studies.experiments.common import mpc_in_use
+    from wbmpc.studies.sweeps.cases import use_robot
 
-    cases._ROBOT["robot"] = robot
-    key = (id(robot), nodes, SolverSettings(compiled=True))
-    saved = common._MPC_CACHE.get(key)
-    common._MPC_CACHE[key] = mpc
-    try:
+    use_robot(robot)
+    with mpc_in_use(mpc, nodes, SolverSettings(compiled=True)):
         yield mpc
-    finally:
-        if saved is None:
-            common._MPC_CACHE.pop(key, None)
-        else:
-            common._MPC_CACHE[key] = saved
 
 
 def _loop_numbers(result, mpc, stats_before: dict) -> dict:

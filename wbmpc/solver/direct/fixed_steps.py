@@ -1,7 +1,7 @@
-"""A real-time-iteration MPC: a fixed number of Fatrop iterations per warm tick, the iterate accepted.
+"""A fixed number of Fatrop iterations per warm solve, the iterate accepted (real-time iteration).
 
-:class:`FixedStepMPC` is a :class:`~wbmpc.control.mpc.WholeBodyMPC` on the direct driver
-(``SolverSettings(direct=True)``) whose warm-start solver (:class:`FixedStepNlpsol`) stops after ``steps``
+:class:`FixedStepNlpsol` is the warm-start solver of :class:`wbmpc.control.fixed_steps.FixedStepMPC`, a
+``WholeBodyMPC`` on the direct driver (``SolverSettings(direct=True)``): it stops after ``steps``
 Fatrop iterations (Newton steps of the barrier problem) from the primal-dual warm start and hands the MPC
 the iterate as a usable plan although Fatrop did not converge: its ``stats()`` reports ``success`` and the
 MPC names the plan's status :data:`FIXED_STEPS_STATUS` (``"fixed_steps"``).
@@ -19,12 +19,7 @@ multipliers, barrier parameter): the real-time iteration of Diehl et al., on Fat
 What still fails as before (the MPC's fallback and cold retry run unchanged): a non-finite iterate (NaN or
 inf in the primal or the multipliers: status ``non_finite_solution``), a Fatrop flag other than
 success / iteration cap / acceptable point (line search or step computation failed, infeasibility), the
-driver raising. Cold solves (the first tick, a cold retry) converge as in :class:`WholeBodyMPC`.
-
-Example:
-    >>> mpc = FixedStepMPC(robot, OCPSettings(n_nodes=15), MPCConfig(), SolverSettings(compiled=True,
-    ...                    direct=True), steps=1)
-    >>> plan = mpc.solve(q_hat, v_hat, t)   # plan.status == "fixed_steps" after the first (cold) tick
+driver raising. Cold solves (the first tick, a cold retry) converge as in ``WholeBodyMPC``.
 """
 
 from __future__ import annotations
@@ -33,7 +28,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from wbmpc.control.mpc import WholeBodyMPC
 from wbmpc.solver.direct.adapter import DirectNlpsol
 from wbmpc.solver.direct.driver import DirectResult
 
@@ -115,7 +109,8 @@ class _FixedStepDriver:
 
 
 class FixedStepNlpsol(DirectNlpsol):
-    """The warm-start solver of a :class:`FixedStepMPC`: ``steps`` Fatrop iterations, the iterate accepted.
+    """The warm-start solver of a :class:`~wbmpc.control.fixed_steps.FixedStepMPC`: ``steps`` Fatrop
+    iterations, the iterate accepted.
 
     Its ``stats()`` is :class:`DirectNlpsol`'s with ``success`` True for a usable iterate (see
     :func:`usable_iterate`) and ``fixed_steps`` (the step count) and ``fixed_steps_accepted`` (True when
@@ -145,46 +140,3 @@ class FixedStepNlpsol(DirectNlpsol):
             "fixed_steps_accepted": bool(self.driver.accepted and self._stats.get("success")),
         }
         return out
-
-
-class FixedStepMPC(WholeBodyMPC):
-    """:class:`WholeBodyMPC` whose warm ticks take ``steps`` Fatrop iterations (real-time iteration).
-
-    Needs ``SolverSettings(direct=True)`` (the direct driver's primal-dual warm start). A warm tick's plan
-    has status :data:`FIXED_STEPS_STATUS` when its iterate was accepted unconverged (``success`` True);
-    ``"success"`` when Fatrop converged within the steps. The cold start and the cold retry converge.
-
-    Args:
-        robot, settings, config, solver: As :class:`WholeBodyMPC`.
-        steps: Fatrop iterations per warm tick (>= 1).
-
-    Raises:
-        ValueError: ``solver`` without ``direct=True``, ``steps`` < 1, and :class:`WholeBodyMPC`'s.
-    """
-
-    def __init__(self, robot, settings=None, config=None, solver=None, *, steps: int = 1):
-        if solver is None or not solver.direct:
-            raise ValueError("FixedStepMPC needs SolverSettings(direct=True) (the direct Fatrop driver)")
-        if int(steps) != steps or steps < 1:
-            raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
-        super().__init__(robot, settings, config, solver)
-        self.steps = int(steps)
-
-    def make_solver(self, name: str, cold: bool, max_iter: int | None = None):
-        """The cold solvers as :class:`WholeBodyMPC`'s; the warm one a :class:`FixedStepNlpsol` (or the
-        plugin fallback unchanged if the direct driver is unavailable)."""
-        solver = super().make_solver(name, cold, max_iter)
-        if cold or not isinstance(solver, DirectNlpsol):
-            return solver
-        return FixedStepNlpsol(self, name, max_iter, solver.driver, self.steps)
-
-    def _run_solver(self, solver, args: dict):
-        w, lam_g, report = super()._run_solver(solver, args)
-        if not isinstance(solver, FixedStepNlpsol):
-            return w, lam_g, report
-        if report["success"] and solver.stats().get("fixed_steps_accepted"):
-            report["status"] = FIXED_STEPS_STATUS
-        elif not report["success"] and w is not None and not np.all(np.isfinite(w)):
-            report["status"] = "non_finite_solution"
-            report["reason"] = "the fixed-step iterate has NaN or inf"
-        return w, lam_g, report

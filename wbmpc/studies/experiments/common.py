@@ -4,6 +4,7 @@ summary fields every experiment reports and small kinematic and figure helpers.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,6 +67,24 @@ def _mpc(robot: Robot, nodes: int, config: MPCConfig, solver: SolverSettings) ->
     mpc.config = config
     mpc.reset()
     return mpc
+
+
+@contextlib.contextmanager
+def mpc_in_use(mpc: WholeBodyMPC, nodes: int, solver: SolverSettings):
+    """Make the experiments run ``mpc`` (any :class:`WholeBodyMPC`, a subclass included) wherever they would
+    build their own MPC for ``mpc.robot`` with ``nodes`` nodes and ``solver``, for the ``with`` block; the
+    experiments' own MPC of that key (if any) is back afterwards. Used by studies that compare solvers in
+    the unchanged experiments (:mod:`wbmpc.studies.newton_steps`)."""
+    key = (id(mpc.robot), nodes, solver)
+    saved = _MPC_CACHE.get(key)
+    _MPC_CACHE[key] = mpc
+    try:
+        yield mpc
+    finally:
+        if saved is None:
+            _MPC_CACHE.pop(key, None)
+        else:
+            _MPC_CACHE[key] = saved
 
 
 def _run(

@@ -137,6 +137,12 @@ NOISE = {
 }
 
 
+def use_robot(robot) -> None:
+    """Make this process's PyBullet cases use ``robot`` (a :class:`~wbmpc.model.robot.Robot`) instead of
+    loading their own B1 + Z1 (so an MPC put in the experiments' cache for it is the one they run)."""
+    _ROBOT["robot"] = robot
+
+
 def _experiment_setup(case: dict, **mpc_kwargs):
     """(the experiments' helpers :mod:`wbmpc.studies.experiments.common`, robot, nodes, MPC config, solver
     settings) for a
