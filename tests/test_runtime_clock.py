@@ -93,6 +93,31 @@ def test_the_history_is_a_ring_of_the_last_ticks():
     assert np.all(history["skipped"] == 0) and np.all(history["lateness_s"] >= 0)
 
 
+def test_two_loops_with_phases_keep_their_offset_on_one_clock():
+    """Started at different moments, a loop at phase 0 and one at half a period tick on the clock's grid,
+    1 ms apart, for good (the emulated robot and the controller taking turns on a CPU)."""
+    clock = FakeClock(start_ns=1_234_567, read_ns=100)
+    robot = DeadlineLoop(0.002, clock_ns=clock.now_ns, sleep=clock.sleep, phase_s=0.0)
+    controller = DeadlineLoop(0.002, clock_ns=clock.now_ns, sleep=clock.sleep, phase_s=0.001)
+    first = robot.wait_next()
+    assert first.deadline_ns % 2_000_000 == 0 and first.deadline_ns >= 1_234_567
+    robot.tick_done()
+    clock.advance(0.0123)  # the controller comes up later
+    wakes = [controller.wait_next().deadline_ns]
+    controller.tick_done()
+    for _ in range(5):
+        for loop in (robot, controller):
+            tick = loop.wait_next()
+            wakes.append(tick.deadline_ns) if loop is controller else None
+            assert tick.deadline_ns % 2_000_000 == (1_000_000 if loop is controller else 0)
+            clock.advance(0.0003)
+            loop.tick_done()
+    assert np.all(np.diff(wakes) == 2_000_000)
+    unphased = DeadlineLoop(0.002, clock_ns=clock.now_ns, sleep=clock.sleep)
+    start = clock.t_ns
+    assert unphased.wait_next().deadline_ns - start <= 1000  # at once
+
+
 def test_misuse_and_bad_arguments():
     clock = FakeClock()
     loop = DeadlineLoop(0.002, clock_ns=clock.now_ns, sleep=clock.sleep)
@@ -108,6 +133,8 @@ def test_misuse_and_bad_arguments():
         ({"period_s": 0.002, "spin_s": 0.01}, "spin_s"),
         ({"period_s": 0.002, "history": 0}, "history"),
         ({"period_s": 0.002, "clock_ns": 5}, "clock_ns"),
+        ({"period_s": 0.002, "phase_s": 0.002}, "phase_s"),
+        ({"period_s": 0.002, "phase_s": -1e-6}, "phase_s"),
     ):
         with pytest.raises(ValueError, match=name):
             DeadlineLoop(**kwargs)

@@ -302,6 +302,19 @@ def test_observation_round_trip_respects_the_joint_maps(pair):
     )
 
 
+def test_an_imu_without_orientation_output_stays_without_one(pair):
+    """The zero quaternion on the wire, ``None`` at the controller: never the identity (which the
+    estimator would trust as a measurement that the base is level)."""
+    robot, port = pair
+    sent = _observation(43)
+    sent.orientation = None
+    port.publish(sent)
+    got = _poll(robot.read)
+    assert got is not None and got.orientation is None
+    legs = robot._inboxes[0]
+    assert not legs.field["quaternion"].any() and not legs.field["rpy"].any()
+
+
 def test_command_round_trip_respects_the_joint_maps(pair, domain):
     robot, port = pair
     sent = _command(np.random.default_rng(11))

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from wbmpc.runtime.metrics import RuntimeMetrics
+from wbmpc.runtime.metrics import RuntimeMetrics, estimate_error
 
 
 def test_percentiles_match_numpy_on_known_data():
@@ -95,3 +95,29 @@ def test_memory_is_bounded_and_the_summary_is_json():
 def test_bad_arguments_are_named(call, name):
     with pytest.raises(ValueError, match=name):
         call()
+
+
+def test_estimate_error_measures_tilt_and_height_against_the_truth_on_the_robots_clock():
+    """A true base rolling at 0.02 rad/s under an estimate held level (what a wire that invented the
+    identity orientation produced): the error is the roll itself; damping ticks are left out."""
+    import pinocchio as pin
+
+    true_t = np.arange(1, 1001) * 0.002  # the robot's clock: its physics starts at the first command
+    roll = 0.02 * true_t
+    true_base = np.zeros((true_t.size, 7))
+    true_base[:, 2] = 0.52
+    true_base[:, 3:7] = [pin.Quaternion(pin.rpy.rpyToMatrix(r, 0, 0)).coeffs() for r in roll]
+    start = 0.5
+    t = start + true_t[:-1] + 0.001  # controller ticks, half a period after the robot's samples
+    q_hat = np.zeros((t.size, 23))
+    q_hat[:, 2] = 0.53
+    q_hat[:, 6] = 1.0
+    damping = t > start + 1.5
+    error = estimate_error(t, q_hat, damping, true_t, true_base, start)
+    controlled = ~damping
+    expected = 0.02 * (t[controlled] - start)
+    assert error["samples"] == controlled.sum()
+    assert error["tilt_rad"]["max"] == pytest.approx(expected.max(), abs=0.02 * 0.002)
+    assert error["tilt_rad"]["p50"] == pytest.approx(np.median(expected), abs=0.02 * 0.002)
+    assert error["height_m"]["p95"] == pytest.approx(0.01)
+    assert estimate_error(t, q_hat, np.ones(t.size, bool), true_t, true_base, start) is None

@@ -1,8 +1,10 @@
 """Absolute deadlines on the monotonic clock: the controller's fixed-rate loop (e.g. 500 Hz).
 
 Tick ``k`` is due at ``t0 + k * period`` (integer nanoseconds), ``t0`` the time of the first
-:meth:`DeadlineLoop.wait_next`: a late wake-up delays one tick, never the ones after it (sleeping ``period``
-after each tick would add every oversleep to all later ticks). :meth:`DeadlineLoop.wait_next` sleeps with
+:meth:`DeadlineLoop.wait_next` (or, with a ``phase_s``, the next instant after it at that phase of the
+clock's own grid of periods, so that two processes' loops tick at a chosen offset from each other): a late
+wake-up delays one tick, never the ones after it (sleeping ``period`` after each tick would add every
+oversleep to all later ticks). :meth:`DeadlineLoop.wait_next` sleeps with
 ``sleep`` until ``spin_s`` before the deadline, then spins on the clock (``time.sleep`` oversleeps by
 50-100 us on a stock Linux kernel; a spin of at most ``spin_s`` buys that back for a little CPU).
 
@@ -105,6 +107,10 @@ class DeadlineLoop:
         sleep: ``sleep(seconds)``, ``time.sleep`` by default.
         spin_s: How long before a deadline to stop sleeping and spin on the clock [s] (0: never spin).
         history: Ticks kept in the ring buffer of :meth:`history` (the most recent ones).
+        phase_s: Start on the clock's grid: the first deadline is the first instant at or after the first
+            :meth:`wait_next` whose time is ``phase_s`` past a whole number of periods (0 <= phase_s <
+            period); ``None``: at once. Two loops of one period on one clock then keep that offset: on a
+            shared CPU they take turns instead of waking together.
 
     Raises:
         ValueError: a bad argument (named).
@@ -122,9 +128,14 @@ class DeadlineLoop:
         *,
         spin_s: float = 200e-6,
         history: int = 4096,
+        phase_s: float | None = None,
     ):
         period_s = checks.number("period_s", period_s, low=0.0, high=10.0, low_open=True, unit="s")
         self.period_ns = max(round(period_s * 1e9), 1)
+        self.phase_ns = None
+        if phase_s is not None:
+            phase_s = checks.number("phase_s", phase_s, low=0.0, high=period_s, high_open=True, unit="s")
+            self.phase_ns = round(phase_s * 1e9) % self.period_ns
         self.spin_ns = round(checks.number("spin_s", spin_s, low=0.0, high=period_s, unit="s") * 1e9)
         capacity = checks.integer("history", history, low=1)
         if not callable(clock_ns) or not callable(sleep):
@@ -164,7 +175,7 @@ class DeadlineLoop:
             raise RuntimeError("call tick_done() at the end of each tick before wait_next()")
         now = self.clock_ns()
         if self.t0_ns is None:
-            self.t0_ns = now
+            self.t0_ns = now if self.phase_ns is None else now + (self.phase_ns - now) % self.period_ns
         index = self._next
         deadline = self.deadline_ns(index)
         skipped = 0

@@ -9,8 +9,8 @@ Each tick of :class:`ControlLoop` (absolute deadlines, :class:`~wbmpc.runtime.cl
    delivers a plan at its start). Used early, its first interval would be extrapolated backwards (the
    feed-forward by up to a whole 10 ms step) and the arm, light and stiffly controlled, rings;
 3. the watchdog: a trip (no new plan for ``max_plan_age``, ``max_overruns`` overruns in a row, the worker
-   dead, an unusable observation, a restarted robot, no observation for ``max_observation_gap``) puts the
-   controller in the damping mode for good; the reason is printed and recorded once;
+   dead, an unusable observation, a restarted robot, no observation for ``max_observation_gap`` of loop
+   ticks) puts the controller in the damping mode for good; the reason is printed and recorded once;
 4. command the robot at the tick's time; publish the estimate for the worker (not in damping: nothing more
    is planned);
 5. record the tick (:class:`~wbmpc.runtime.metrics.RuntimeMetrics`) and the log row.
@@ -110,13 +110,18 @@ class ControlLoop:
         self.t0 = time.monotonic()
         self.observations.publish(0.0, q0, np.zeros(robot.nv), epoch=self.epoch)
         self._first_plan(60.0)
-        return self._ticks(DeadlineLoop(config.period))
+        return self._ticks(DeadlineLoop(config.period, phase_s=config.controller_phase))
 
     def _ticks(self, loop: DeadlineLoop) -> dict:
         config, controller = self.config, self.controller
         faults = config.faults
         killed = restarted = False
-        last_obs, last_wake = 0.0, None
+        last_wake, silent_ticks = None, 0
+        # The robot's silence is counted in the loop's own ticks: when the whole machine stalls (a
+        # virtual machine's host took both CPUs for 50 ms, seen), the robot and the controller stop
+        # together and the first tick after it comes before the robot's next reading; a robot that stops
+        # publishing is still caught after max_observation_gap of ticks.
+        max_silent = round(config.max_observation_gap / config.period)
         while True:  # for ``duration`` seconds of the wall clock (skipped ticks do not lengthen the run)
             tick = loop.wait_next()
             now = tick.wake_ns / 1e9 - self.t0
@@ -130,15 +135,17 @@ class ControlLoop:
                 self.restart_robot()
                 restarted = True
             observation = self.client.read()
+            silent_ticks += 1
             if observation is not None:
                 observation.stamp -= self.t0  # the run's clock (both on CLOCK_MONOTONIC)
                 problem = controller.estimate(observation)
                 if "not finite" in problem or "restarted" in problem:
                     self._trip(f"the robot sent an unusable observation: {problem}", now)
                 elif not problem:
-                    last_obs = now
-            if now - last_obs > config.max_observation_gap:
-                self._trip(f"no observation from the robot for {now - last_obs:.3f} s", now)
+                    silent_ticks = 0
+            if silent_ticks > max_silent:
+                gap = silent_ticks * config.period
+                self._trip(f"no observation from the robot for {silent_ticks} ticks ({gap:.3f} s)", now)
             got = self.plans.latest(self.plan_seq, self.epoch)
             if got is not None:
                 self.plan_seq, self.plan_meta = got[1].seq, got[1]
@@ -233,6 +240,7 @@ class ControlLoop:
         summary["controller_problems"] = [reason for _, reason in controller.problems[:20]]
         summary["controller_problem_count"] = len(controller.problems)
         summary["clipped"] = dict(controller.clipped)
+        summary["held_periods"] = controller.held_periods
         summary["damping"] = bool(controller.damping)
         summary["later_causes"] = [{"time_s": t, "reason": r} for t, r in self.later_causes]
         damped = np.flatnonzero(self.log["damping"])

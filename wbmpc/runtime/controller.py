@@ -4,7 +4,12 @@ At every low-level tick (500 Hz) :class:`RuntimeController`
 
 1. checks the observation (a non-finite field or a wrong shape never reaches the estimator: the tick
    reports it and the controller keeps its last estimate);
-2. runs the state estimator (:class:`wbmpc.estimation.StateEstimator`, the contacts of the gait schedule);
+2. runs the state estimator (:class:`wbmpc.estimation.StateEstimator`, the contacts of the gait schedule)
+   once per sample period the observation stands for: a reading that superseded older ones (the
+   controller read the newest of two, or one was lost) is held over the missing periods, since the
+   estimator integrates the IMU and the legs' motion over a fixed period per update (fed only the newest
+   of its samples, it under-counted time: over DDS on two shared cores, where 28 % of the ticks found two
+   new readings, the estimated forward position gained 77 % of the true one);
 3. interpolates the latest plan at the tick's time (:class:`wbmpc.control.low_level.LowLevelController`);
 4. returns the command for the motor drivers: setpoints, feed-forward and gains
    (``joint_pd="drive"``: the drivers close the PD loop), or the whole torque with zero gains
@@ -23,6 +28,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from wbmpc import checks
 from wbmpc.control.config import MPCSolution
 from wbmpc.runtime.robot import MotorCommand, Observation
 from wbmpc.sim.closed_loop import joint_level
@@ -33,6 +39,9 @@ __all__ = ["RuntimeController"]
 
 #: A tick this far behind the last one is a restarted robot, not a message out of order.
 RESTART_WINDOW = 50
+
+#: Most sample periods a reading is held over (a longer silence trips the watchdog's observation gap).
+MAX_HELD_PERIODS = 10
 
 #: Damping [N m s/rad] of the damping mode (Unitree's own examples damp with kd of 1-5).
 DAMPING_KD = 3.0
@@ -48,12 +57,15 @@ class RuntimeController:
         contacts: The contact plan, ``contacts(times) -> (n_feet, n)`` flags (the MPC's
             :meth:`~wbmpc.control.mpc.WholeBodyMPC.contact_plan` with the run's gait).
         damping_kd: Damping of the damping mode [N m s/rad] (> 0).
+        seq_step: How much an observation's ``seq`` advances per sample period of the robot (1 for a
+            message counter; a robot whose tick counts milliseconds at 500 Hz says 2).
 
     Attributes:
         low: The plan interpolation (its ``plan`` is the plan in use).
         q_hat, v_hat: The last estimate (nq,), (nv,).
         last_command: The last command returned; damping: True once the damping mode is on.
         problems: ``(stamp, reason)`` of every observation or command refused.
+        held_periods: Sample periods bridged by holding a newer reading (readings superseded or lost).
         clipped: Ticks at which the setpoints ``q``, ``dq`` or ``tau`` were clipped to the joint limits.
     """
 
@@ -63,8 +75,11 @@ class RuntimeController:
         config: ClosedLoopConfig,
         contacts: Callable[[np.ndarray], np.ndarray],
         damping_kd: float = DAMPING_KD,
+        seq_step: int = 1,
     ):
         self.robot, self.config = robot, config
+        self.seq_step = checks.integer("seq_step", seq_step, low=1)
+        self.held_periods = 0
         _, _, per_low = config.steps()
         self.dt = per_low * config.plant.dt
         self.low, _ = joint_level(robot, config)
@@ -119,10 +134,14 @@ class RuntimeController:
         if problem:
             self.problems.append((observation.stamp, problem))
             return problem
+        periods = 1
+        if last is not None:
+            periods = min(max(round((observation.seq - last) / self.seq_step), 1), MAX_HELD_PERIODS)
         self._last_seq = observation.seq
-        self.q_hat, self.v_hat = self.estimator.update(
-            observation.imu(), observation.joints(), observation.stamp
-        )
+        imu, joints = observation.imu(), observation.joints()
+        self.held_periods += periods - 1
+        for k in range(periods - 1, -1, -1):  # the missing periods first, at their own times
+            self.q_hat, self.v_hat = self.estimator.update(imu, joints, observation.stamp - k * self.dt)
         return ""
 
     def command(self, t: float) -> MotorCommand:

@@ -51,13 +51,18 @@ import numpy as np
 
 from wbmpc.runtime import messages as m
 from wbmpc.runtime.dds import DEFAULT_DOMAIN, DdsEndpoint, write_serialized
-from wbmpc.runtime.robot import JointMap, MotorCommand, Observation
+from wbmpc.runtime.robot import (
+    JointMap,
+    MotorCommand,
+    Observation,
+    orientation_from_wire,
+    orientation_to_wire,
+)
 
 __all__ = ["OWNER_TIMEOUT_S", "DdsRobot", "DdsRobotPort", "split_joints"]
 
 OWNER_TIMEOUT_S = 0.5
 DEPTH = 16  # samples a reader keeps between two takes (32 ms at 500 Hz)
-_IDENTITY_WXYZ = (1.0, 0.0, 0.0, 0.0)
 _WXYZ_TO_XYZW = np.array([1, 2, 3, 0])
 
 
@@ -285,6 +290,11 @@ class DdsRobot(_End):
         self._open(domain, interface, robot.joint_names, maps)
         self.arm_stamp = None
 
+    @property
+    def seq_step(self) -> int:
+        """How much an observation's ``seq`` (the leg state's tick) advances per state message."""
+        return self._tick_step
+
     @staticmethod
     def _new_record(codec):
         record = codec.zeros()
@@ -301,8 +311,9 @@ class DdsRobot(_End):
         :attr:`arm_stamp`), or ``None``: no new accepted leg state, or no arm state yet.
 
         The observation's ``stamp`` is ``time.monotonic()`` when the leg state was taken, its ``seq`` the
-        leg state's tick, its orientation the IMU's quaternion as ``(x, y, z, w)``, its ``foot_force`` the
-        four wire values [robot units] in Unitree's FR, FL, RR, RL order.
+        leg state's tick, its orientation the IMU's quaternion as ``(x, y, z, w)`` (``None`` for the
+        zero quaternion: no orientation output, :data:`~wbmpc.runtime.robot.NO_ORIENTATION`), its
+        ``foot_force`` the four wire values [robot units] in Unitree's FR, FL, RR, RL order.
         """
         legs, *arm = self._inboxes
         new = legs.take()
@@ -327,7 +338,7 @@ class DdsRobot(_End):
             tau=tau,
             gyro=field["gyroscope"].astype(float),
             accelerometer=field["accelerometer"].astype(float),
-            orientation=field["quaternion"][_WXYZ_TO_XYZW].astype(float),
+            orientation=orientation_from_wire(field["quaternion"][_WXYZ_TO_XYZW]),
             foot_force=field["foot_force"].astype(float),
         )
 
@@ -386,7 +397,6 @@ class DdsRobotPort(_End):
     def _new_record(codec):
         record = codec.zeros()
         record["head"], record["level_flag"] = m.HEAD, m.LEVEL_FLAG_LOW
-        record["imu_state"]["quaternion"] = _IDENTITY_WXYZ
         return record
 
     def _new_inbox(self, reader, codec, joint_map, index):
@@ -432,11 +442,8 @@ class DdsRobotPort(_End):
 def _write_imu(field: dict, observation: Observation) -> None:
     """The IMU (quaternion w-x-y-z, gyroscope, accelerometer, rpy ZYX [rad]) and foot forces of a
     ``LowState_`` (its record's views)."""
-    if observation.orientation is None:
-        w, x, y, z = _IDENTITY_WXYZ
-    else:
-        x, y, z, w = (float(v) for v in observation.orientation)
-    field["quaternion"][:] = (w, x, y, z)
+    x, y, z, w = (float(v) for v in orientation_to_wire(observation.orientation))
+    field["quaternion"][:] = (w, x, y, z)  # zero: the IMU reports no orientation (NO_ORIENTATION)
     field["gyroscope"][:] = observation.gyro
     field["accelerometer"][:] = observation.accelerometer
     field["rpy"][:] = (

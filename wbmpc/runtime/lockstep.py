@@ -5,7 +5,9 @@ plant, MPC ticks, plan delays, observers and log) with its controller side repla
 every low-level tick the robot (:class:`~wbmpc.runtime.emulated.SimulatedRobot`) is read, the
 :class:`~wbmpc.runtime.controller.RuntimeController` estimates and commands, the command is written back,
 and the robot's drivers evaluate it at every plant step; plans reach the controller through a
-:class:`~wbmpc.runtime.shared.PlanChannel` (shared memory, sequence numbers, epochs) when one is given.
+:class:`~wbmpc.runtime.shared.PlanChannel` (shared memory, sequence numbers, epochs) when one is given,
+and the readings and commands through the emulated robot's shared-memory wire (:mod:`~wbmpc.runtime.wire`)
+when ``wire=True``: what the wall-clock run sends, encoded and decoded the same way.
 
 With ``sensing.state="estimated"`` and ``low_level.joint_pd="drive"`` (the hardware preset
 :func:`wbmpc.sim.presets.hardware_config`) and a fixed delay it reproduces :func:`run_closed_loop`
@@ -38,6 +40,8 @@ class LockstepLoop(ClosedLoop):
             ``"estimated"`` (a robot measures no floating base).
         channel: Optional plan channel the plans go through (``publish`` then ``latest``); ``None``: handed
             over directly.
+        wire: Pass every reading and command through a shared-memory :class:`~wbmpc.runtime.wire.Wire`
+            (both ends in this process; released by :meth:`close_wire`), as the wall-clock run does.
 
     Attributes:
         robot_side: The simulated robot (sensors, drivers); controller: the runtime controller.
@@ -53,6 +57,7 @@ class LockstepLoop(ClosedLoop):
         q0: np.ndarray | None = None,
         observers: Sequence[LoopObserver] = (),
         channel=None,
+        wire: bool = False,
     ):
         if config.sensing.state != "estimated":
             raise ValueError(
@@ -69,6 +74,24 @@ class LockstepLoop(ClosedLoop):
         self.drive = self.robot_side.drive
         self.channel = channel
         self._plan_seq = 0
+        self._wire = self._client = self._port = None
+        if wire:
+            from wbmpc.runtime.wire import SharedMemoryPort, SharedMemoryRobot, Wire
+
+            description, *self._wire = Wire.create(self.robot.nj)
+            self._port = SharedMemoryPort(description)
+            self._client = SharedMemoryRobot(description, self.robot.joint_names)
+
+    def close_wire(self) -> None:
+        """Release the shared-memory wire (if any)."""
+        if self._wire is None:
+            return
+        self._client.close()
+        self._port.close()
+        for slot in self._wire:
+            slot.close()
+            slot.unlink()
+        self._wire = None
 
     def _start_sensing(self) -> None:
         self.robot_side.reset(self.state)
@@ -91,7 +114,13 @@ class LockstepLoop(ClosedLoop):
 
     def _joint_commands(self) -> None:
         observation = self.robot_side.read(self.state, self.t)
+        if self._wire is not None:
+            self._port.publish(observation)
+            observation = self._client.read()
         command = self.controller.tick(observation, self.t)
+        if self._wire is not None:
+            self._client.write(command)
+            command = self._port.latest_command()
         self.robot_side.write(command)
         self.q_meas, self.v_meas = self.controller.q_hat, self.controller.v_hat
         if self.config.low_level.joint_pd == "controller":
@@ -104,8 +133,12 @@ def run_lockstep(
     q0: np.ndarray | None = None,
     channel=None,
     observers: Sequence[LoopObserver] = (),
+    wire: bool = False,
 ) -> ClosedLoopResult:
     """Run :class:`LockstepLoop` to the config's duration or a fall (in memory; no progress bar).
+
+    Args:
+        mpc, config, q0, channel, observers, wire: As :class:`LockstepLoop`.
 
     Returns:
         The log and summary of :func:`wbmpc.sim.closed_loop.run_closed_loop`, plus the controller's
@@ -114,7 +147,7 @@ def run_lockstep(
     config.steps()  # checks the config before anything is built
     log = ClosedLoopLog()
     observers = [LogRecorder(log), FailureObserver(), *observers]
-    loop = LockstepLoop(mpc, config, q0, observers, channel)
+    loop = LockstepLoop(mpc, config, q0, observers, channel, wire)
     try:
         fell = loop.run()
         summary = log.finish(lambda columns: loop.summary(columns, fell))
@@ -122,6 +155,7 @@ def run_lockstep(
         for observer in observers:
             observer.close()
         loop.plant.close()
+        loop.close_wire()
     summary["runtime_problems"] = [reason for _, reason in loop.controller.problems]
     summary["runtime_clipped"] = dict(loop.controller.clipped)
     return ClosedLoopResult(log=log, summary=summary, fell=fell)

@@ -23,7 +23,7 @@ import numpy as np
 
 from wbmpc import checks
 
-__all__ = ["RuntimeMetrics", "Series"]
+__all__ = ["RuntimeMetrics", "Series", "estimate_error"]
 
 SERIES = ("period", "lateness", "compute", "plan_age", "latency")
 
@@ -202,3 +202,54 @@ class RuntimeMetrics:
         out["watchdog_event_count"] = self.event_count
         out["exact_percentiles"] = all(series.exact for series in self.series.values())
         return out
+
+
+def estimate_error(
+    t: np.ndarray,
+    q_hat: np.ndarray,
+    damping: np.ndarray,
+    true_t: np.ndarray,
+    true_base: np.ndarray,
+    true_start: float,
+) -> dict | None:
+    """How far the controller's base estimate was from the emulated robot's true base, while controlled.
+
+    Only a simulated robot knows its true base: the emulated robot's process keeps it once per period.
+    Its clock starts with its physics, at the first command; ``true_start`` [s] is that moment on the
+    run's clock (the controller's first tick), so the two series are aligned to about one robot period.
+
+    Args:
+        t: Controller tick times [s] (n,); q_hat: the estimates (n, nq); damping: the ticks in damping (n,).
+        true_t: The robot's times since its physics started [s] (m,); true_base: its true ``q[:7]`` (m, 7).
+        true_start: When the robot's physics started, on the run's clock [s].
+
+    Returns:
+        ``tilt_rad`` (the angle between the estimated and the true base z axes) and ``height_m`` (estimated
+        minus true base height), each with ``p50``, ``p95``, ``max`` (absolute values), and ``samples``;
+        ``None`` without a controlled tick inside the robot's record.
+    """
+    t, true_t = np.asarray(t, dtype=float), np.asarray(true_t, dtype=float) + true_start
+    controlled = (
+        ~np.asarray(damping, dtype=bool) & (t >= true_t[0]) & (t <= true_t[-1]) if len(true_t) else []
+    )
+    if not np.any(controlled):
+        return None
+    rows = np.asarray(q_hat, dtype=float)[controlled]
+    truth = np.asarray(true_base, dtype=float)[
+        np.searchsorted(true_t, t[controlled]).clip(0, len(true_t) - 1)
+    ]
+
+    def z_axes(quats):  # third column of the rotation of (x, y, z, w) quaternions
+        x, y, z, w = (quats[:, i] for i in range(4))
+        return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1)
+
+    cos = np.sum(z_axes(rows[:, 3:7]) * z_axes(truth[:, 3:7]), axis=1)
+    tilt = np.arccos(np.clip(cos, -1.0, 1.0))
+    height = np.abs(rows[:, 2] - truth[:, 2])
+
+    def stats(values):
+        return {k: float(f(values)) for k, f in (("p50", np.median), ("max", np.max))} | {
+            "p95": float(np.percentile(values, 95))
+        }
+
+    return {"tilt_rad": stats(tilt), "height_m": stats(height), "samples": int(controlled.sum())}

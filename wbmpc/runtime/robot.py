@@ -29,13 +29,37 @@ from wbmpc import checks
 from wbmpc.estimation import ImuReading, JointReading
 
 __all__ = [
+    "NO_ORIENTATION",
     "JointMap",
     "MotorCommand",
     "Observation",
     "Robot",
+    "orientation_from_wire",
+    "orientation_to_wire",
     "quaternion_wxyz_to_xyzw",
     "quaternion_xyzw_to_wxyz",
 ]
+
+#: What a wire carries in its quaternion field when the IMU reports no orientation of its own: the zero
+#: quaternion (not a rotation, so it cannot be mistaken for one). A wire that put the identity there would
+#: tell the estimator, at its orientation output's confidence, that the base is level: on the emulated
+#: robot (whose IMU has no orientation output) that held the estimated tilt at zero while the real base
+#: leaned, and the trot fell within a second.
+NO_ORIENTATION = np.zeros(4)
+
+
+def orientation_to_wire(orientation) -> np.ndarray:
+    """The quaternion ``(x, y, z, w)`` a wire carries for ``orientation`` (``None``:
+    :data:`NO_ORIENTATION`)."""
+    return NO_ORIENTATION.copy() if orientation is None else np.asarray(orientation, dtype=float)
+
+
+def orientation_from_wire(quat_xyzw) -> np.ndarray | None:
+    """The IMU orientation ``(x, y, z, w)`` a wire carried, or ``None`` for :data:`NO_ORIENTATION` (an
+    exactly zero quaternion: no orientation output). A non-finite one is passed on for
+    :meth:`Observation.problem` to refuse."""
+    quat = np.asarray(quat_xyzw, dtype=float)
+    return None if not np.any(quat) else quat
 
 
 def quaternion_wxyz_to_xyzw(quat) -> np.ndarray:
@@ -249,6 +273,8 @@ class Robot(Protocol):
     """
 
     joint_names: tuple[str, ...]
+    # A robot may also say how much ``Observation.seq`` advances per reading, as ``seq_step`` (1 if it
+    # does not): the controller then knows how many readings an observation superseded.
 
     def read(self) -> Observation | None:
         """The newest observation since the last call, or ``None`` if none arrived (never blocks long)."""

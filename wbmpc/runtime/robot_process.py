@@ -33,6 +33,12 @@ class EmulatedRobotSpec:
         plant_dt: Physics step [s] (1 kHz: the drivers' PD law runs at this rate; the simulations use 0.5 ms,
             but on 2 cores the wall clock leaves the emulated robot half a core); period: the readings' and
             commands' period [s] (a multiple of it).
+        phase: Offset [s] of its ticks on the monotonic clock's grid of periods (``None``: none; the
+            controller ticks at :attr:`RuntimeConfig.controller_phase <wbmpc.runtime.run.RuntimeConfig>`).
+        spin: How long before each tick the robot's loop stops sleeping and spins on the clock [s]
+            (:class:`~wbmpc.runtime.clock.DeadlineLoop`). None by default: on the CPU it shares with the
+            controller a spin takes the time the controller's tick needs, and an emulated robot's tick 0.1
+            ms late does no harm.
         hardware: Use the default :class:`~wbmpc.sim.hardware.HardwareProfile` (friction, armature, CoM
             offset, latency, noisy sensors); False: the ideal robot.
         seed: Sensor-noise seed.
@@ -40,6 +46,8 @@ class EmulatedRobotSpec:
 
     plant_dt: float = 0.001
     period: float = 0.002
+    phase: float | None = 0.0
+    spin: float = 0.0
     hardware: bool = True
     seed: int = 0
 
@@ -112,7 +120,7 @@ def run_emulated_robot(
         )
         substeps = round(spec.period / spec.plant_dt)
         port = port_factory()
-        loop = DeadlineLoop(spec.period)
+        loop = DeadlineLoop(spec.period, phase_s=spec.phase, spin_s=spec.spin)
         started, t = False, 0.0
         while not stop.is_set() and os.getppid() == parent:
             tick = loop.wait_next()

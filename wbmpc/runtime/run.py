@@ -9,7 +9,7 @@ then runs the controller loop in this process on absolute 2 ms deadlines (:class
    refused by the channel and counted);
 3. command the robot at the tick's time from the plan in use, or in damping mode once the watchdog tripped
    (no new plan for ``max_plan_age`` seconds, ``max_overruns`` overruns in a row, the worker dead, an
-   observation that is not finite, no observation for ``max_observation_gap`` seconds); the reason is
+   observation that is not finite, no observation for ``max_observation_gap`` of loop ticks); the reason is
    said once;
 4. publish the estimate for the worker; record the tick (:class:`~wbmpc.runtime.metrics.RuntimeMetrics`).
 
@@ -35,6 +35,7 @@ import numpy as np
 from wbmpc.runtime.accounts import read_account
 from wbmpc.runtime.faults import Faults
 from wbmpc.runtime.mpc_worker import MPCRecipe, run_worker
+from wbmpc.runtime.priority import realtime_priority
 from wbmpc.runtime.robot_process import EmulatedRobotSpec, run_emulated_robot
 
 __all__ = ["CPU_LAYOUTS", "RuntimeConfig", "cpu_sets", "run_runtime"]
@@ -56,7 +57,8 @@ class RuntimeConfig:
         period: Controller period [s]; mpc_rate: the planner's nominal rate [Hz] (the worker runs free, a
             solve starting when the last one returned; a multiple of the robot's 1 ms step).
         max_plan_age: Watchdog limit on the age of the plan in use [s]; max_overruns: overrun ticks in a row
-            that trip it; max_observation_gap: seconds without a robot observation that trip it.
+            that trip it; max_observation_gap: time without a robot observation that trips it [s],
+            counted in the loop's own ticks (a stall of the whole machine is not the robot's silence).
         nodes, compiled: The MPC; max_iter: its warm solves' iteration cap (a failed solve is not
             published; no cold retry on the wall clock); direct: the worker solves with the direct Fatrop
             driver (:mod:`wbmpc.solver.direct`).
@@ -64,6 +66,16 @@ class RuntimeConfig:
         gait_schedule: The gait schedule (e.g. ``"stand:1,trot@0.2:3"``; the run lasts it, ``duration`` is
             replaced); ``None``: stand 2 s, trot at ``speed``, stand 2 s over ``duration``.
         ready_timeout: Seconds to wait for the worker's MPC (a first compile takes minutes).
+        controller_phase: Offset [s] of the controller's ticks on the monotonic clock's grid of periods,
+            where the emulated robot ticks at offset 0 (:attr:`EmulatedRobotSpec.phase`); ``None``: the
+            loop starts when it starts. Half a period by default: the robot's physics and the controller's
+            tick then take turns on the CPU they share and each command is computed from a reading half a
+            period old (when they woke together, a fifth of the controller's ticks waited 0.6-0.8 ms for
+            the robot's physics and the loop period's p99 was 2.84 ms). A real robot keeps its own time:
+            the offset to its readings is then whatever it happens to be.
+        realtime_priority: ``SCHED_FIFO`` priority of the controller's loop
+            (:func:`~wbmpc.runtime.priority.realtime_priority`; where the system refuses it, the loop runs at
+            the ordinary priority and the summary's ``scheduling`` says why), or ``None``.
         arm_motion: The arm's end effector moves up and down (the default
             :class:`~wbmpc.control.arm_task.ArmReference`, 15 cm over 5 s) instead of being held still in
             the heading frame (the default: a stand-trot-stand run tests the legs and the wire).
@@ -92,6 +104,8 @@ class RuntimeConfig:
     gait_schedule: str | None = None
     cpu_layout: str = "split"
     arm_motion: bool = False
+    controller_phase: float | None = 0.001
+    realtime_priority: int | None = 50
 
     def __post_init__(self):
         if self.cpu_layout not in CPU_LAYOUTS:
@@ -101,6 +115,11 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.faults must be a Faults, got {self.faults!r}")
         if self.direct and not self.compiled:
             raise ValueError("RuntimeConfig.direct needs compiled=True (the direct driver is compiled)")
+        if self.controller_phase is not None and not 0.0 <= self.controller_phase < self.period:
+            raise ValueError(
+                f"RuntimeConfig.controller_phase must be in [0, period = {self.period}) s or None, "
+                f"got {self.controller_phase!r}"
+            )
         if self.robot not in ("emulated", "dds"):
             raise ValueError(f"RuntimeConfig.robot must be 'emulated' or 'dds', got {self.robot!r}")
         if self.robot == "dds":
@@ -235,12 +254,19 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
         client = _client(config, wire, robot)
         gait = parse_gait_schedule(config.gait)
         contacts = PushRecovery(robot)
-        controller = RuntimeController(robot, loop_config, lambda times: contacts.contact(times, gait))
+        controller = RuntimeController(
+            robot,
+            loop_config,
+            lambda times: contacts.contact(times, gait),
+            seq_step=getattr(client, "seq_step", 1),
+        )
         loop = ControlLoop(config, robot, client, controller, plans, observations, worker, restart_robot)
         log = loop.log
         if cpus["controller"] is not None:
             os.sched_setaffinity(0, cpus["controller"])
-        summary = loop.run()
+        with realtime_priority(config.realtime_priority) as scheduling:
+            summary = loop.run()
+        summary["scheduling"] = scheduling
     finally:
         os.sched_setaffinity(0, own_cpus)
         stop.set()
@@ -262,7 +288,18 @@ def run_runtime(config: RuntimeConfig, output: str | Path | None = None) -> dict
 
     summary["machine"] = machine_description()  # timing depends on it: name the CPU
     summary["worker"] = read_account(worker_stats)
-    summary["robot"] = _robot_summary(read_account(robot_stats), config)
+    robot_account = read_account(robot_stats)
+    truth = (np.asarray(robot_account.get("t", [])), np.asarray(robot_account.get("base", [])))
+    summary["robot"] = _robot_summary(robot_account, config)
+    if log and log["t"] and len(truth[0]):
+        from wbmpc.runtime.metrics import estimate_error
+
+        # the robot's physics starts at the first command: the controller's first tick
+        summary["estimate_error"] = estimate_error(
+            log["t"], log["q_hat"], log["damping"], *truth, true_start=log["t"][0]
+        )
+    if output is not None and log and len(truth[0]):  # what only a simulated robot knows, for the plots
+        np.savez_compressed(Path(output) / "robot_truth.npz", t=truth[0], base=truth[1])
     shutil.rmtree(accounts, ignore_errors=True)
     if output is not None:
         (Path(output) / "summary.json").write_text(json.dumps(summary, indent=1, default=_json))

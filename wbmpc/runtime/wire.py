@@ -12,9 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
-from wbmpc.runtime.robot import MotorCommand, Observation
+from wbmpc.runtime.robot import MotorCommand, Observation, orientation_from_wire, orientation_to_wire
 from wbmpc.runtime.shared import LatestSlot, SlotDescription
 
 __all__ = ["SharedMemoryPort", "SharedMemoryRobot", "Wire"]
@@ -86,7 +84,7 @@ class SharedMemoryRobot:
             tau=v["tau"].copy(),
             gyro=v["gyro"].copy(),
             accelerometer=v["accelerometer"].copy(),
-            orientation=v["orientation"].copy(),
+            orientation=orientation_from_wire(v["orientation"].copy()),
         )
 
     def write(self, command: MotorCommand) -> None:
@@ -120,7 +118,6 @@ class SharedMemoryPort:
         self.commands = 0
 
     def publish(self, observation: Observation) -> None:
-        orientation = observation.orientation
         self._state.write(
             {
                 "stamp": observation.stamp,
@@ -130,7 +127,7 @@ class SharedMemoryPort:
                 "tau": observation.tau,
                 "gyro": observation.gyro,
                 "accelerometer": observation.accelerometer,
-                "orientation": np.array([0.0, 0.0, 0.0, 1.0]) if orientation is None else orientation,
+                "orientation": orientation_to_wire(observation.orientation),
             }
         )
 
