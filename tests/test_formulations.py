@@ -119,6 +119,24 @@ def test_plan_is_a_static_equilibrium_with_consistent_torques(robot, standing):
     assert np.all(np.abs(cold.tau) <= robot.joint_torque_limits + 1e-6)
 
 
+def test_the_numpy_plan_reader_equals_the_plan_function(standing):
+    """Every formulation's plan read by NumPy (selections and contact-flag products of w and p, the rest
+    through CasADi) equals the CasADi plan function, on the solution and on random vectors."""
+    from wbmpc.ocp.plan_reader import PlanReader
+
+    mpc, cold, _ = standing
+    f = mpc.ocp.plan_function
+    reader = PlanReader(f)
+    assert set(reader.read) | set(reader.evaluated) == set(reader.names) == {"dq", "v", "a", "forces", "tau"}
+    rng = np.random.default_rng(5)
+    p = mpc.last_inputs["p"]  # of the warm solve: any parameter vector will do
+    for w, pv in ((cold.w, p), (rng.normal(size=f.size1_in(0)), rng.normal(size=f.size1_in(1)))):
+        got, expected = reader(w, pv), f(w=w, p=pv)
+        for name in reader.names:
+            np.testing.assert_array_equal(got[name], np.array(expected[name]).T, err_msg=name)
+    np.testing.assert_array_equal(mpc.ocp.plan(cold.w, p)["v"], np.array(f(w=cold.w, p=p)["v"]).T)
+
+
 def test_plan_satisfies_the_equations_of_motion(robot, standing):
     """RNEA of the planned q, v, a and forces: base rows zero (no actuation of the floating base)."""
     mpc, cold, _ = standing

@@ -68,19 +68,26 @@ class ArmReference:
 
     def local(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Position [m] and velocity [m/s] of the reference in the heading frame at time ``t``."""
-        w = 2 * np.pi / self.period
-        arg = w * t + np.asarray(self.phase)
-        amp = np.asarray(self.amplitude)
+        p, v = self.local_at(np.array([t], dtype=float))
+        return p[0], v[0]
+
+    def local_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions [m] and velocities [m/s] (n, 3) of the reference in the heading frame at ``times`` (n,)
+        (one evaluation for the MPC's node times)."""
         if self.center is None:
             raise ValueError("ArmReference.center is None: call centered_at(q, ee_position) first")
-        if self.ramp > 0 and t < self.ramp:
+        times = np.asarray(times, dtype=float).reshape(-1, 1)
+        w = 2 * np.pi / self.period
+        arg = w * times + np.asarray(self.phase)
+        amp = np.asarray(self.amplitude)
+        s, ds = np.ones_like(times), np.zeros_like(times)
+        if self.ramp > 0:
             # Smoothstep ramp s(t) so that the reference starts at rest.
-            x = t / self.ramp
-            s, ds = 3 * x**2 - 2 * x**3, (6 * x - 6 * x**2) / self.ramp
-        else:
-            s, ds = 1.0, 0.0
-        p = np.asarray(self.center) + s * amp * np.sin(arg)
-        v = s * amp * w * np.cos(arg) + ds * amp * np.sin(arg)
+            x = np.minimum(times / self.ramp, 1.0)
+            s, ds = 3 * x**2 - 2 * x**3, np.where(x < 1.0, (6 * x - 6 * x**2) / self.ramp, 0.0)
+        sin = np.sin(arg)
+        p = np.asarray(self.center) + s * amp * sin
+        v = s * amp * w * np.cos(arg) + ds * amp * sin
         return p, v
 
 
@@ -143,11 +150,9 @@ def velocity_command(
     carry += yaw_rate * np.array([-lever[1], lever[0], 0.0])
     if local_velocity is not None:
         carry = carry + R @ checks.vector("local_velocity", local_velocity, 3, unit="m/s")
-    times = np.array([t]) if node_times is None else np.asarray(node_times)
-    commands = np.empty((3, times.size))
-    for k, tk in enumerate(times):
-        decay = 1.0 if node_times is None else np.exp(-kp * (tk - t))
-        v = R @ reference.local(tk)[1] + carry + kp * decay * error
-        speed = np.linalg.norm(v)
-        commands[:, k] = v * (max_speed / speed) if speed > max_speed else v
+    times = np.array([t]) if node_times is None else np.asarray(node_times, dtype=float)
+    decay = np.ones(times.size) if node_times is None else np.exp(-kp * (times - t))
+    commands = R @ reference.local_at(times)[1].T + carry[:, None] + kp * error[:, None] * decay
+    speed = np.sqrt(np.sum(commands * commands, axis=0))
+    commands *= np.where(speed > max_speed, max_speed / np.maximum(speed, 1e-300), 1.0)
     return (commands[:, 0] if node_times is None else commands), p_ref

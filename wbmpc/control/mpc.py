@@ -570,7 +570,7 @@ class WholeBodyMPC:
         return w, lam_g, report
 
     def _solution(self, w, lam_g, q_hat, t, p, params, report: dict) -> MPCSolution:
-        plan = {key: np.array(value).T for key, value in self.ocp.plan_function(w=w, p=p).items()}
+        plan = self.ocp.plan(w, p)
         model = self.robot.model
         q = np.array([pin.integrate(model, q_hat, d) for d in plan["dq"]])
         n_c = len(self.robot.contact_frames)

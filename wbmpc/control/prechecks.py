@@ -90,7 +90,7 @@ def ee_force_feasibility(
             )
     if not robot.has_arm:
         return findings
-    tau, names, limits = arm_hold_torques(robot, q, force)
+    tau, names, limits = arm_hold_torques(robot, q, force, info=info)
     for name, needed, limit in zip(names, tau, limits, strict=True):
         ratio = abs(needed) / limit if limit > 0 else math.inf
         data = {"joint": name, "needed": float(needed), "limit": float(limit), "force": force.tolist()}

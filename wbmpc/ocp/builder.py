@@ -290,6 +290,7 @@ class OCP:
             x0 = self.initial_state_value(stages[0], p)
             self.initial_state_function = ca.Function("x0", [P.vector], [x0], ["p"], ["x0"])
         self.plan_function = self._plan_function(stages, P, dts, x0)
+        self._plan_reader = None
         self.dts_function = ca.Function("dts", [p["dt_min"], p["dt_max"]], [ca.vertcat(*dts)])
         self.nlp = {"x": ca.vertcat(*x_parts), "p": P.vector, "f": cost, "g": ca.vertcat(*g_parts)}
         self.lbg, self.ubg = np.array(lbg), np.array(ubg)
@@ -509,6 +510,16 @@ class OCP:
         if self.initial_state_is_parameter:
             outputs = ca.substitute(outputs, [stages[0].x], [x0])
         return ca.Function("plan", [w, P.vector], outputs, ["w", "p"], ["dq", "v", "a", "forces", "tau"])
+
+    def plan(self, w: np.ndarray, p: np.ndarray) -> dict[str, np.ndarray]:
+        """The physical plan of a primal vector ``w``: ``dq``, ``v`` (N, nv), ``a`` (N-1, nv), ``forces``
+        (N-1, 3 n_contacts), ``tau`` (torque nodes, nj); :attr:`plan_function` read by NumPy where it
+        can be (:class:`~wbmpc.ocp.plan_reader.PlanReader`, built on first use)."""
+        if self._plan_reader is None:
+            from wbmpc.ocp.plan_reader import PlanReader
+
+            self._plan_reader = PlanReader(self.plan_function)
+        return self._plan_reader(w, p)
 
     # --- helpers for solvers and controllers -----------------------------------------------------------
     def stage_sizes(self) -> dict[str, list[int]]:
