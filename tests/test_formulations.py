@@ -137,6 +137,23 @@ def test_the_numpy_plan_reader_equals_the_plan_function(standing):
     np.testing.assert_array_equal(mpc.ocp.plan(cold.w, p)["v"], np.array(f(w=cold.w, p=p)["v"]).T)
 
 
+def test_join_by_scatter_equals_join_by_stage(robot, standing):
+    """Where the formulation's variables are the plan's entries, join() is a NumPy scatter: the same
+    primal vector as the formulations' per-stage packing, with fewer torque rows than stages too; and
+    the plan read back from it is what went in (the decision-variable part)."""
+    mpc, cold, _ = standing
+    ocp = mpc.ocp
+    N, nv, rng = ocp.n_nodes, robot.nv, np.random.default_rng(9)
+    dq, v = 0.01 * rng.normal(size=(N, nv)), rng.normal(size=(N, nv))
+    a, forces = rng.normal(size=(N - 1, nv)), rng.normal(size=(N - 1, len(robot.contact_frames), 3))
+    for tau in (rng.normal(size=(N - 1, robot.nj)), rng.normal(size=(1, robot.nj))):
+        expected = ocp.join_by_stage(robot.q_nominal, dq, v, a, forces, tau)
+        np.testing.assert_array_equal(ocp.join(robot.q_nominal, dq, v, a, forces, tau), expected)
+    if mpc.ocp._reader().can_scatter:
+        plan = ocp.plan(expected, mpc.last_inputs["p"])
+        np.testing.assert_array_equal(plan["v"][1:], v[1:])
+
+
 def test_plan_satisfies_the_equations_of_motion(robot, standing):
     """RNEA of the planned q, v, a and forces: base rows zero (no actuation of the floating base)."""
     mpc, cold, _ = standing

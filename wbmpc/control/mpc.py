@@ -113,6 +113,8 @@ class WholeBodyMPC:
         self.stats["library_switches"] = 0
         self.push_recovery = PushRecovery(robot)  # swings aborted after a push (MPCConfig.kick_recovery)
         self.prechecks = Prechecks(robot)  # physical checks of each solve request, with their own data
+        # Of the model the OCP was built from (the Robot properties walk the model on every call).
+        self._mass, self._gravity = robot.mass, robot.gravity
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.release: ReleaseUpgrade | None = None  # the compiled library's flags, its release build
@@ -278,8 +280,9 @@ class WholeBodyMPC:
             )
         ratio = robot.front_force_ratio if cfg.front_force_ratio is None else cfg.front_force_ratio
         # The vertical targets carry the weight plus the commanded end-effector load.
-        weight = robot.mass * robot.gravity - commands.ee_force[2]
-        force_des = default_force_distribution(sample.contact, weight / robot.gravity, robot.gravity, ratio)
+        gravity = self._gravity
+        weight = self._mass * gravity - commands.ee_force[2]
+        force_des = default_force_distribution(sample.contact, weight / gravity, gravity, ratio)
         R_base = pin.Quaternion(q_hat[3:7]).normalized().toRotationMatrix()
         R_heading = pin.rpy.rpyToMatrix(0.0, 0.0, heading(q_hat))
         v_des = np.zeros(robot.nv)

@@ -141,9 +141,11 @@ class ParameterLayout:
             value = np.asarray(values[name], dtype=float)
             if value.size != rows * cols or (value.ndim == 2 and value.shape != (rows, cols)):
                 raise ValueError(f"parameter {name!r} must have shape ({rows}, {cols}), got {value.shape}")
-            if not np.all(np.isfinite(value)):
-                raise ValueError(f"parameter {name!r} contains NaN or inf")
             out[start : start + rows * cols] = value.reshape(rows, cols).ravel(order="F")
+        if not np.isfinite(out).all():  # one check of the whole vector; the block is named when it fails
+            for name, (start, (rows, cols)) in self.blocks.items():
+                if not np.isfinite(out[start : start + rows * cols]).all():
+                    raise ValueError(f"parameter {name!r} contains NaN or inf")
         return out
 
     def unpack(self, p: np.ndarray, name: str) -> np.ndarray:
@@ -515,11 +517,14 @@ class OCP:
         """The physical plan of a primal vector ``w``: ``dq``, ``v`` (N, nv), ``a`` (N-1, nv), ``forces``
         (N-1, 3 n_contacts), ``tau`` (torque nodes, nj); :attr:`plan_function` read by NumPy where it
         can be (:class:`~wbmpc.ocp.plan_reader.PlanReader`, built on first use)."""
+        return self._reader()(w, p)
+
+    def _reader(self):
         if self._plan_reader is None:
             from wbmpc.ocp.plan_reader import PlanReader
 
             self._plan_reader = PlanReader(self.plan_function)
-        return self._plan_reader(w, p)
+        return self._plan_reader
 
     # --- helpers for solvers and controllers -----------------------------------------------------------
     def stage_sizes(self) -> dict[str, list[int]]:
@@ -565,13 +570,25 @@ class OCP:
         return {name: np.array(values) for name, values in out.items()}
 
     def join(self, q_hat, dq, v, a, forces, tau) -> np.ndarray:
-        """Primal vector from physical quantities (the inverse of the plan function).
+        """Primal vector from physical quantities (the inverse of the plan function): a NumPy scatter
+        where the formulation's variables are the plan's entries (:meth:`PlanReader.scatter
+        <wbmpc.ocp.plan_reader.PlanReader.scatter>`), else per stage.
 
         Args:
             q_hat: Measured configuration (nq,).
             dq, v: (N, nv) increments and velocities; a: (N-1, nv); forces: (N-1, n_c, 3) [N];
             tau: (n, nj) joint torques of the first ``n`` stages (missing rows are zero).
         """
+        reader = self._reader()
+        forces = np.asarray(forces, dtype=float)
+        n_forces = self.plan_function.size1_out(3)  # 3 per contact frame of the plan
+        if reader.can_scatter and forces.ndim == 3 and forces.shape[1] * forces.shape[2] == n_forces:
+            flat_forces = forces.reshape(len(forces), -1)
+            return reader.scatter({"dq": dq, "v": v, "a": a, "forces": flat_forces, "tau": tau})
+        return self.join_by_stage(q_hat, dq, v, a, forces, tau)
+
+    def join_by_stage(self, q_hat, dq, v, a, forces, tau) -> np.ndarray:
+        """:meth:`join` stage by stage, through the formulation's ``state_values`` / ``input_values``."""
         form, model = self.formulation, self.robot.model
         parts = []
         for s in self.stages:

@@ -48,6 +48,8 @@ class PlanReader:
             else:
                 self._read[name] = (*factors, out.shape)
         self.read = tuple(self._read)
+        self.n_w = n_w
+        self._scatter = self._scatter_plan(n_w)
         self.evaluated = tuple(name for name, _ in rest)
         self._rest = None
         if rest:
@@ -66,6 +68,45 @@ class PlanReader:
             for name, value in self._rest(w=w, p=p).items():
                 plan[name] = np.array(value).T
         return {name: plan[name] for name in self.names}
+
+    @property
+    def can_scatter(self) -> bool:
+        """Whether :meth:`scatter` can build ``w`` (every decision variable appears exactly once in the
+        outputs read by NumPy, alone or times a parameter)."""
+        return self._scatter is not None
+
+    def scatter(self, values: dict[str, np.ndarray]) -> np.ndarray:
+        """The primal vector ``w`` whose plan holds ``values`` (arrays shaped like :meth:`__call__`'s, each
+        missing rows are zero; a parameter factor, such as a contact flag, is not applied).
+
+        Raises:
+            RuntimeError: this plan function cannot be inverted so (:attr:`can_scatter` is False).
+        """
+        if self._scatter is None:
+            raise RuntimeError("this plan function is not a scatter of w (see PlanReader.can_scatter)")
+        w = np.empty(self.n_w)
+        for name, (dest, src, size) in self._scatter.items():
+            flat = np.asarray(values[name], dtype=float).reshape(-1)[:size]
+            if flat.size < size:  # fewer rows than the plan has (e.g. torques): the rest are zero
+                flat = np.concatenate([flat, np.zeros(size - flat.size)])
+            w[dest] = flat[src]
+        return w
+
+    def _scatter_plan(self, n_w: int) -> dict | None:
+        """Per output read by NumPy: the w indices it holds and its entries holding them."""
+        owner = np.full(n_w, -1)
+        plans = {}
+        for name, (a, b, (rows, cols)) in self._read.items():
+            is_w_a, is_w_b = a < n_w, b < n_w
+            if np.any(is_w_a & is_w_b):  # a product of two decision variables: not a scatter
+                return None
+            entries = np.flatnonzero(is_w_a | is_w_b)
+            dest = np.where(is_w_a, a, b)[entries]
+            if np.any(owner[dest] >= 0) or len(np.unique(dest)) != len(dest):
+                return None  # a variable in two places: which value to take is the formulation's call
+            owner[dest] = 1
+            plans[name] = (dest, entries, rows * cols)
+        return plans if np.all(owner >= 0) else None
 
     def _factors(self, out: ca.SX, index: dict[str, int]) -> tuple[np.ndarray, np.ndarray] | None:
         """The two factor indices of every entry of ``out``, or ``None`` if one is anything else."""
