@@ -33,10 +33,12 @@ def full_mode(tmp_path, monkeypatch):
     return tmp_path
 
 
-def _mpc(direct: bool, release=RELEASE) -> WholeBodyMPC:
+def _mpc(direct: bool, release=RELEASE, build: bool = True) -> WholeBodyMPC:
     robot = load_b1_z1()
     config = MPCConfig(gait=make_gait("stand"), dt_max=0.02)
-    solver = SolverSettings(compiled=True, direct=direct, compile_flags=BASE, release_flags=release)
+    solver = SolverSettings(
+        compiled=True, direct=direct, compile_flags=BASE, release_flags=release, release_build=build
+    )
     mpc = WholeBodyMPC(robot, SMALL, config, solver)
     mpc.verbose = False
     return mpc
@@ -114,6 +116,21 @@ def test_a_failed_release_build_warns_once_and_keeps_the_base_library(full_mode)
     assert mpc.solve(q, v, t=0.02).success
 
 
+def test_without_release_build_the_release_library_is_used_only_when_cached(full_mode):
+    """``release_build=False`` (the runtime's worker): no compiler starts; a release library another MPC
+    left in the cache is used from the first solve."""
+    q, v = next(_states(load_b1_z1(), 1))
+    waiting = _mpc(False, build=False)
+    assert waiting.solve(q, v).success
+    assert waiting.release.process is None and waiting.library_flags() == BASE
+    builder = _mpc(False)
+    assert builder.solve(q, v).success and builder.release.process is not None
+    builder.release.process.wait(BUILD_TIMEOUT_S)
+    later = _mpc(False, build=False)
+    assert later.library_flags() == RELEASE and later.solve(q, v).success
+    assert later.release.process is None
+
+
 def test_quick_mode_leaves_the_release_library_out(tmp_path, monkeypatch):
     monkeypatch.setenv("WBMPC_QUICK", "1")
     monkeypatch.setenv("WBMPC_CACHE_DIR", str(tmp_path))
@@ -127,5 +144,7 @@ def test_release_settings_are_checked():
         SolverSettings(compiled=True, release_flags=("-O3", 3))
     assert SolverSettings(release_flags=["-O2"]).release_flags == ("-O2",)
     assert SolverSettings().release_flags == codegen.RELEASE_FLAGS
+    with pytest.raises(ValueError, match="release_build"):
+        SolverSettings(release_build="no")
     with pytest.raises(ValueError, match="kind"):
         ReleaseUpgrade(None, "plugin", BASE, RELEASE)

@@ -214,6 +214,8 @@ class SolverSettings:
             background process at the lowest priority while the first library serves, switched to between two
             solves when ready, used from the start once cached (:mod:`wbmpc.solver.release`; left out in quick
             mode). ``None``: no release library.
+        release_build: Build the release library in the background when it is not cached; False: use it
+            only if it is (the runtime's MPC worker: a compiler beside the control loops would take a core).
         tol: Solver tolerance (paper: 1e-3).
         max_iter: Iteration cap of a warm-started solve.
         cold_max_iter: Iteration cap of a cold start (the first solve).
@@ -232,6 +234,7 @@ class SolverSettings:
     compiled: bool = False
     compile_flags: tuple[str, ...] = ("-O1",)
     release_flags: tuple[str, ...] | None = RELEASE_FLAGS
+    release_build: bool = True
     tol: float = TOL
     max_iter: int = WARM_MAX_ITER
     cold_max_iter: int = 200
@@ -257,6 +260,9 @@ class SolverSettings:
             raise ValueError(
                 "SolverSettings.compiled needs solver='fatrop' (the library holds Fatrop's functions)"
             )
+        if not isinstance(self.release_build, bool | np.bool_):
+            build = self.release_build
+            raise ValueError(f"SolverSettings.release_build must be True or False, got {build!r}")
         if not isinstance(self.direct, bool | np.bool_):
             raise ValueError(f"SolverSettings.direct must be True or False, got {self.direct!r}")
         if self.direct and self.solver != "fatrop":

@@ -181,7 +181,9 @@ class WholeBodyMPC:
         if self.release is None:
             cfg = self.solver_settings
             kind = "direct" if cfg.direct else "nlp"
-            self.release = ReleaseUpgrade(self.ocp, kind, cfg.compile_flags, cfg.release_flags)
+            self.release = ReleaseUpgrade(
+                self.ocp, kind, cfg.compile_flags, cfg.release_flags, build=cfg.release_build
+            )
         return self.release.flags
 
     def _switch_to_release(self) -> float:

@@ -89,8 +89,9 @@ class MPCRecipe:
         from wbmpc.ocp import OCPSettings
 
         settings = OCPSettings(n_nodes=self.nodes, torque_limit_fraction=self.torque_limit_fraction)
-        # No background release build on the wall clock: gcc would take a core from the loops mid-run.
-        solver = SolverSettings(compiled=self.compiled, direct=self.direct, release_flags=None)
+        # The release library if it is cached, but no background build on the wall clock: gcc would take a
+        # core from the loops mid-run.
+        solver = SolverSettings(compiled=self.compiled, direct=self.direct, release_build=False)
         if self.max_iter is not None:
             solver = replace(solver, max_iter=self.max_iter)
         config = MPCConfig(gait=self.schedule(), cold_retry=self.cold_retry)

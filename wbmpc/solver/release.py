@@ -53,6 +53,8 @@ class ReleaseUpgrade:
         base_flags: Flags of the library built first (``SolverSettings.compile_flags``).
         release_flags: Flags of the release library, or ``None`` for none.
         directory: Cache folder (default :func:`wbmpc.solver.codegen.cache_dir`).
+        build: Start the background build when the release library is not cached (False: use it only if
+            it is; e.g. on the wall clock, where gcc would take a core from the control loops).
 
     Attributes:
         flags: The flags of the library to use now: ``release_flags`` once the release library is cached
@@ -65,11 +67,14 @@ class ReleaseUpgrade:
         ValueError: an unknown ``kind``.
     """
 
-    def __init__(self, ocp, kind: str, base_flags, release_flags, directory: Path | None = None):
+    def __init__(
+        self, ocp, kind: str, base_flags, release_flags, directory: Path | None = None, build: bool = True
+    ):
         if kind not in ("nlp", "direct"):
             raise ValueError(f"kind must be 'nlp' or 'direct', got {kind!r}")
         self.ocp, self.kind, self.directory = ocp, kind, directory
         self.base_flags = tuple(base_flags)
+        self.build = bool(build)
         self.release_flags = None if release_flags is None else tuple(release_flags)
         self.enabled = (
             self.release_flags is not None and self.release_flags != self.base_flags and not quick_mode()
@@ -120,12 +125,15 @@ class ReleaseUpgrade:
     def start(self) -> bool:
         """Start the background build of the release library (call it once the base library is built).
 
-        Does nothing when the release library is not wanted, already in use, or being built.
+        Does nothing when the release library is not wanted, already in use, being built, or not to be
+        built here (``build=False``).
 
         Returns:
             True if a build was started.
         """
         if not self.enabled or self.on_release or self.process is not None or self.failure is not None:
+            return False
+        if not self.build:
             return False
         base, target, key, description = self._folders()
         source = base / "wbmpc_nlp.c" if self.kind == "nlp" else base / "sources"
