@@ -27,7 +27,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--speed", type=float, default=0.2, help="trot speed command [m/s]")
     parser.add_argument("--nodes", type=int, default=15, help="MPC nodes")
     parser.add_argument("--in-process", action="store_true", help="in-process Fatrop (no compiled library)")
-    parser.add_argument("--direct", action="store_true", help="the direct Fatrop driver in the MPC worker")
+    solver = parser.add_mutually_exclusive_group()
+    solver.add_argument(
+        "--direct", action="store_true", help="the direct Fatrop driver in the MPC worker (the default)"
+    )
+    solver.add_argument("--plugin", action="store_true", help="the casadi nlpsol plugin in the MPC worker")
     parser.add_argument("--output", default=None, help="folder for summary.json and runtime_log.npz")
     args = parser.parse_args(argv)
 
@@ -42,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
             interface=args.iface,
             nodes=args.nodes,
             compiled=not args.in_process,
-            direct=args.direct,
+            direct=False if args.plugin else None,
         )
     except ValueError as error:
         parser.error(str(error))

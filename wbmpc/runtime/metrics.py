@@ -23,7 +23,7 @@ import numpy as np
 
 from wbmpc import checks
 
-__all__ = ["RuntimeMetrics", "Series", "estimate_error"]
+__all__ = ["RuntimeMetrics", "Series", "estimate_error", "tilt_errors"]
 
 SERIES = ("period", "lateness", "compute", "plan_age", "latency")
 
@@ -239,12 +239,7 @@ def estimate_error(
         np.searchsorted(true_t, t[controlled]).clip(0, len(true_t) - 1)
     ]
 
-    def z_axes(quats):  # third column of the rotation of (x, y, z, w) quaternions
-        x, y, z, w = (quats[:, i] for i in range(4))
-        return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1)
-
-    cos = np.sum(z_axes(rows[:, 3:7]) * z_axes(truth[:, 3:7]), axis=1)
-    tilt = np.arccos(np.clip(cos, -1.0, 1.0))
+    tilt = tilt_errors(rows[:, 3:7], truth[:, 3:7])
     height = np.abs(rows[:, 2] - truth[:, 2])
 
     def stats(values):
@@ -253,3 +248,14 @@ def estimate_error(
         }
 
     return {"tilt_rad": stats(tilt), "height_m": stats(height), "samples": int(controlled.sum())}
+
+
+def tilt_errors(estimated: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Angles [rad] between the base z axes of two series of unit quaternions ``(x, y, z, w)`` (n, 4)."""
+
+    def z_axes(quats):  # third column of the rotation matrix
+        x, y, z, w = (quats[:, i] for i in range(4))
+        return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1)
+
+    cos = np.sum(z_axes(np.asarray(estimated, float)) * z_axes(np.asarray(true, float)), axis=1)
+    return np.arccos(np.clip(cos, -1.0, 1.0))

@@ -108,7 +108,8 @@ class WorkerStats:
     Attributes:
         solves: Solves run; failed: solves that did not converge (not published); published: plans sent;
         skipped: observations superseded before the worker took them; solve_times: whole call [s] per
-        solve; iterations: per solve; errors: tracebacks of exceptions (the worker stops on one).
+        solve; iterations: per solve; errors: tracebacks of exceptions (the worker stops on one);
+        solver: what solved (``direct`` driver or plugin, the compiled library's gcc ``flags``).
     """
 
     solves: int = 0
@@ -119,6 +120,7 @@ class WorkerStats:
     iterations: list = field(default_factory=list)
     reasons: list = field(default_factory=list)
     errors: list = field(default_factory=list)
+    solver: dict = field(default_factory=dict)
 
 
 def run_worker(
@@ -166,6 +168,10 @@ def run_worker(
         if nice:
             os.nice(nice)  # the controller's loop must get a core the moment it wakes
         mpc = recipe.build()
+        settings = mpc.solver_settings
+        stats.solver = {"direct": bool(settings.direct), "compiled": bool(settings.compiled)}
+        if settings.compiled:
+            stats.solver["flags"] = list(mpc.library_flags())
         q0 = np.asarray(q0, dtype=float)
         planner = Planner(mpc, loop_config, q0)
         v0 = np.zeros(mpc.robot.nv)

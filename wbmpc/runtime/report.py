@@ -15,17 +15,19 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["RuntimeRun", "load_run", "plan_latencies", "plot_run"]
+__all__ = ["RuntimeRun", "load_run", "plan_latencies", "plot_estimate", "plot_run"]
 
 
 @dataclass
 class RuntimeRun:
     """One run: ``summary`` (the JSON, milliseconds) and ``log`` (per tick: ``t`` [s], ``lateness``,
     ``compute``, ``plan_age`` [s, NaN in damping], ``plan_seq``, ``plan_obs_t`` [s], ``damping``, the
-    estimate and the commands)."""
+    estimate and the commands); ``truth``: the emulated robot's true base (``t`` [s] since its physics
+    started, ``base`` (n, 7)), ``None`` when the run did not write it."""
 
     summary: dict
     log: dict[str, np.ndarray]
+    truth: dict[str, np.ndarray] | None = None
 
     @property
     def period_s(self) -> float:
@@ -53,7 +55,11 @@ def load_run(folder: str | Path) -> RuntimeRun:
     summary = json.loads((folder / "summary.json").read_text())
     with np.load(folder / "runtime_log.npz") as data:
         log = {key: data[key] for key in data.files}
-    return RuntimeRun(summary, log)
+    truth = None
+    if (folder / "robot_truth.npz").is_file():
+        with np.load(folder / "robot_truth.npz") as data:
+            truth = {key: data[key] for key in data.files}
+    return RuntimeRun(summary, log, truth)
 
 
 def plan_latencies(log: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -72,8 +78,8 @@ def plot_run(run: RuntimeRun, mpc_period_s: float | None = None):
 
     Args:
         run: The run.
-        mpc_period_s: The MPC's period [s] the plan-age target is two of; ``None``: the mean interval
-            between the plans the controller used.
+        mpc_period_s: The MPC's period [s] the plan-age target is two of; ``None``: the configured one
+            (``1 / mpc_rate``; the free-running worker may plan more often, which the latency panel shows).
 
     Returns:
         The matplotlib figure.
@@ -84,7 +90,7 @@ def plot_run(run: RuntimeRun, mpc_period_s: float | None = None):
     t = np.asarray(log["t"])
     uses, latency = plan_latencies(log)
     if mpc_period_s is None:
-        mpc_period_s = float(np.mean(np.diff(uses))) if uses.size > 2 else float("nan")
+        mpc_period_s = 1.0 / float(run.summary["config"]["mpc_rate"])
     fig, axes = plt.subplots(2, 2, figsize=(11, 6.5))
     ax = axes[0, 0]
     periods = np.diff(t) * 1e3
@@ -108,6 +114,39 @@ def plot_run(run: RuntimeRun, mpc_period_s: float | None = None):
     ax.set(xlabel="time of first use [s]", ylabel="latency [ms]", title="Measurement to first command")
     damping = run.damping_from_s
     for ax in axes[0, 1], axes[1, 0], axes[1, 1]:
+        if damping is not None:
+            ax.axvspan(damping, t[-1], color="tab:gray", alpha=0.2, lw=0)
+    fig.tight_layout()
+    return fig
+
+
+def plot_estimate(run: RuntimeRun):
+    """The controller's base estimate against the emulated robot's truth: forward position, height and the
+    tilt error (the angle between the estimated and the true base z axes) over the run.
+
+    Raises:
+        ValueError: the run has no truth (a real robot, or a run written before it was recorded).
+    """
+    import matplotlib.pyplot as plt
+
+    from wbmpc.runtime.metrics import tilt_errors
+
+    if run.truth is None:
+        raise ValueError("this run has no robot_truth.npz: only an emulated robot knows its true base")
+    t, q_hat = np.asarray(run.log["t"]), np.asarray(run.log["q_hat"])
+    true_t = np.asarray(run.truth["t"]) + t[0]  # the robot's physics starts at the first command
+    base = np.asarray(run.truth["base"])
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    for ax, i, name in ((axes[0], 0, "forward position x [m]"), (axes[1], 2, "base height z [m]")):
+        ax.plot(true_t, base[:, i], color="k", lw=1.2, label="true")
+        ax.plot(t, q_hat[:, i], color="tab:blue", lw=0.8, label="estimated")
+        ax.set(xlabel="time [s]", ylabel=name)
+        ax.legend(loc="best", fontsize=8)
+    index = np.searchsorted(true_t, t).clip(0, len(true_t) - 1)
+    axes[2].plot(t, np.degrees(tilt_errors(q_hat[:, 3:7], base[index, 3:7])), lw=0.7, color="tab:blue")
+    axes[2].set(xlabel="time [s]", ylabel="tilt error [deg]", title="Estimated vs true base z axis")
+    damping = run.damping_from_s
+    for ax in axes:
         if damping is not None:
             ax.axvspan(damping, t[-1], color="tab:gray", alpha=0.2, lw=0)
     fig.tight_layout()
