@@ -247,5 +247,3 @@ def _eye(n: int) -> np.ndarray:
         eye = _EYES[n] = np.eye(n)
         eye.flags.writeable = False
     return eye
-
-
