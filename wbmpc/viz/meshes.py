@@ -89,8 +89,13 @@ class _IndexedMeshGeometry(mg.Geometry):
 _MESH_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
-def _decimated_mesh(geometry_object: pin.GeometryObject, cell: float):
-    """Decimated (vertices, faces, normals) of a mesh geometry object, or ``None`` if it is not a mesh."""
+def decimated_mesh(geometry_object: pin.GeometryObject, cell: float):
+    """Decimated (vertices, faces, normals) of a mesh geometry object, or ``None`` if it is not a mesh.
+
+    Args:
+        geometry_object: A Pinocchio visual geometry object (its mesh file and scale).
+        cell: Vertex-clustering cell [m] (:func:`simplify_mesh`). Cached per file, scale and cell.
+    """
     geometry = geometry_object.geometry
     if not (hasattr(geometry, "vertices") and hasattr(geometry, "tri_indices")):
         return None
@@ -114,7 +119,7 @@ class _RobotVisualizer(MeshcatVisualizer):
         self.mesh_resolution = mesh_resolution
 
     def loadViewerGeometryObject(self, geometry_object, geometry_type, color=None):
-        mesh = _decimated_mesh(geometry_object, self.mesh_resolution) if self.mesh_resolution else None
+        mesh = decimated_mesh(geometry_object, self.mesh_resolution) if self.mesh_resolution else None
         if mesh is None:
             return super().loadViewerGeometryObject(geometry_object, geometry_type, color)
         rgba = np.asarray(geometry_object.meshColor if color is None else color, dtype=float)

@@ -22,7 +22,7 @@ import io
 import numpy as np
 
 from wbmpc.viz.camera import CAMERA_FOV
-from wbmpc.viz.meshes import _decimated_mesh
+from wbmpc.viz.meshes import decimated_mesh
 
 __all__ = ["CHROMIUM_MAX_URL", "PICTURE_MESH_RESOLUTION", "notebook_view", "scene_png", "snapshot_iframe"]
 
@@ -81,7 +81,7 @@ def scene_png(
 
     triangles, shades = [], []
     for obj, placement in zip(viewer.geometry.geometryObjects, viewer.viz.visual_data.oMg, strict=True):
-        mesh = _decimated_mesh(obj, resolution)
+        mesh = decimated_mesh(obj, resolution)
         if mesh is None:
             continue
         vertices, faces, _ = mesh
