@@ -17,6 +17,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc import checks
+from wbmpc.control import guesses
 from wbmpc.control.config import (
     DT_BOUNDS,
     SOLVERS,
@@ -36,11 +37,12 @@ from wbmpc.ocp.gait import (
     GaitSchedule,
     swing_vertical_velocity,
 )
-from wbmpc.ocp.time_grid import geometric_time_steps, interp_rows, node_times
+from wbmpc.ocp.time_grid import geometric_time_steps, node_times
 from wbmpc.solver import codegen
 from wbmpc.solver.nlpsol import make_nlpsol, solver_options
 from wbmpc.solver.release import ReleaseUpgrade
 from wbmpc.solver.statuses import exception_status, solver_status
+from wbmpc.solver.timings import solver_timings
 
 __all__ = [
     "DT_BOUNDS",
@@ -329,57 +331,12 @@ class WholeBodyMPC:
 
     # --- initial guesses ---------------------------------------------------------------------------------
     def cold_guess(self, q_hat: np.ndarray, v_hat: np.ndarray, params: dict) -> np.ndarray:
-        """A physically consistent start: hold the measured state, static forces and torques on every node."""
-        N, nv = self.n_nodes, self.robot.nv
-        contact = params["contact"] > 0.5
-        ee_force = params["ee_force"] if self.robot.has_arm else None  # a robot without an arm has none
-        forces, taus = [], []
-        for k in range(N - 1):
-            try:
-                eq = static_equilibrium(self.robot, q_hat, contact[:, k], ee_force=ee_force)
-                f, tau = eq.forces, eq.tau
-            except ValueError:  # no stance foot on this node: no static solution, zero forces
-                f, tau = np.zeros((self.robot.n_feet, 3)), np.zeros(self.robot.nj)
-            if self.robot.has_arm:
-                f = np.vstack([f, params["ee_force"]])
-            forces.append(f)
-            taus.append(tau)
-        return self.ocp.join(
-            q_hat,
-            np.zeros((N, nv)),
-            np.tile(v_hat, (N, 1)),
-            np.zeros((N - 1, nv)),
-            np.array(forces),
-            np.array(taus),
-        )
+        """:func:`wbmpc.control.guesses.cold_guess` of this MPC."""
+        return guesses.cold_guess(self.ocp, self.robot, q_hat, v_hat, params)
 
     def shifted_guess(self, previous: MPCSolution, q_hat: np.ndarray, t: float, params: dict) -> np.ndarray:
-        """Previous plan interpolated on the new node times around ``q_hat``, with forces re-initialised.
-
-        Forces get the targets (weight over the stance feet, zero on swing feet, the commanded arm force)
-        because the adaptive grid shifts contact switches between solves (paper, Sec. V-A).
-        """
-        model = self.robot.model
-        N = self.n_nodes
-        t_new = node_times(self.time_steps(), t)
-        t_old = previous.node_times
-        # Express the old configurations in the old chart and interpolate there (linear in the tangent).
-        q_ref = previous.q[0]
-        dq_old = np.array([pin.difference(model, q_ref, q) for q in previous.q])
-        dq_interp = interp_rows(t_new, t_old, dq_old)
-        q_new = [pin.integrate(model, q_ref, d) for d in dq_interp]
-        dq = np.array([pin.difference(model, q_hat, q) for q in q_new])
-        dq[0] = 0.0
-        v = interp_rows(t_new, t_old, previous.v)
-        v[0] = params["v_hat"]
-        a = interp_rows(t_new[:-1], t_old[:-1], previous.a)
-        # Torques on every stage (held after the last planned one): formulations take what they use.
-        tau = interp_rows(t_new[:-1], t_old[: len(previous.tau)], previous.tau)
-        forces = np.zeros((N - 1, len(self.robot.contact_frames), 3))
-        forces[:, : self.robot.n_feet, 2] = params["force_des"].T
-        if self.robot.has_arm:
-            forces[:, -1] = params["ee_force"]
-        return self.ocp.join(q_hat, dq, v, a, forces, tau)
+        """:func:`wbmpc.control.guesses.shifted_guess` of this MPC, on its node times from ``t`` [s]."""
+        return guesses.shifted_guess(self.ocp, self.robot, self.time_steps(), previous, q_hat, t, params)
 
     # --- solve ----------------------------------------------------------------------------------------------
     def solve(
@@ -630,23 +587,3 @@ class WholeBodyMPC:
     def recovering(self) -> bool:
         """After a push, until the base velocity is back near the command."""
         return self.push_recovery.recovering
-
-
-def solver_timings(stats: dict, wall: float) -> dict:
-    """Where a solve's time went [s]: derivative evaluations, the solver's own work, Python overhead."""
-    evaluations = sum(v for k, v in stats.items() if k.startswith("t_wall_nlp_"))
-    fatrop = stats.get("fatrop") if isinstance(stats.get("fatrop"), dict) else {}
-    # Fatrop reports its own total; otherwise CasADi's, when it records one.
-    total = float(fatrop.get("time_total", stats.get("t_wall_total", wall)))
-    out = {
-        "wall": wall,
-        "evaluations": float(evaluations),
-        "hessian": float(stats.get("t_wall_nlp_hess_l", 0.0)),
-        "jacobian": float(stats.get("t_wall_nlp_jac_g", 0.0)),
-        "solver": total - float(evaluations),
-        "overhead": wall - total,
-    }
-    if fatrop:  # Fatrop's own split of its work
-        out["search_direction"] = float(fatrop.get("compute_sd_time", 0.0))
-        out["initialization"] = float(fatrop.get("initialization_time", 0.0))
-    return out
