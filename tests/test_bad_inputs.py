@@ -275,6 +275,28 @@ def _mutated_steps():
     return config.steps()
 
 
+def _runtime_config(**kwargs):
+    from wbmpc.runtime.run import RuntimeConfig
+
+    return RuntimeConfig(**kwargs)
+
+
+def _deadline_loop(**kwargs):
+    from wbmpc.runtime.clock import DeadlineLoop
+
+    return DeadlineLoop(0.002, **kwargs)
+
+
+def _runtime_controller(**kwargs):
+    from wbmpc.runtime.controller import RuntimeController
+    from wbmpc.sim.presets import hardware_config
+
+    robot = _b1z1()
+    return RuntimeController(
+        robot, hardware_config(), lambda times: np.ones((4, np.size(times)), bool), **kwargs
+    )
+
+
 C = ValueError
 R = RobotModelError
 CATALOGUE = [
@@ -1097,6 +1119,56 @@ CATALOGUE = [
         "ee_force must be finite",
     ),
     ("named", "statics weight 1", lambda: _statics([True] * 4, weight=1.0), C, "weight must be in (0, 1)"),
+    # --- the runtime and the direct driver's settings (issues 21, 22) --------------------------------------
+    (
+        "silent",
+        "runtime realtime_priority 0",
+        lambda: _runtime_config(realtime_priority=0),
+        C,
+        "realtime_priority must be a SCHED_FIFO priority in 1..99",
+    ),
+    (
+        "silent",
+        "runtime controller_phase beyond the period",
+        lambda: _runtime_config(controller_phase=0.002),
+        C,
+        "controller_phase must be in [0, period = 0.002) s",
+    ),
+    (
+        "silent",
+        "runtime direct driver without a compiled library",
+        lambda: _runtime_config(direct=True, compiled=False),
+        C,
+        "direct needs compiled=True",
+    ),
+    (
+        "silent",
+        "solver direct with IPOPT",
+        lambda: SolverSettings(solver="ipopt", direct=True),
+        C,
+        "direct needs solver='fatrop'",
+    ),
+    (
+        "silent",
+        "solver release_build not a bool",
+        lambda: SolverSettings(release_build="no"),
+        C,
+        "release_build must be True or False",
+    ),
+    (
+        "silent",
+        "deadline loop phase beyond the period",
+        lambda: _deadline_loop(phase_s=0.003),
+        C,
+        "phase_s",
+    ),
+    (
+        "silent",
+        "runtime controller seq_step 0",
+        lambda: _runtime_controller(seq_step=0),
+        C,
+        "seq_step",
+    ),
     # --- rosbag topic map -------------------------------------------------------------------------------
     (
         "named",

@@ -115,6 +115,14 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.cpu_layout must be one of {CPU_LAYOUTS}, got {layout!r}")
         if not isinstance(self.faults, Faults):
             raise ValueError(f"RuntimeConfig.faults must be a Faults, got {self.faults!r}")
+        priority = self.realtime_priority
+        if priority is not None and (
+            isinstance(priority, bool) or not isinstance(priority, int) or not 1 <= priority <= 99
+        ):
+            raise ValueError(
+                "RuntimeConfig.realtime_priority must be a SCHED_FIFO priority in 1..99 or None, "
+                f"got {priority!r}"
+            )
         if self.direct is None:
             self.direct = bool(self.compiled)
         if self.direct and not self.compiled:
