@@ -117,6 +117,7 @@ class WholeBodyMPC:
         self.prechecks = Prechecks(robot)  # physical checks of each solve request, with their own data
         # Of the model the OCP was built from (the Robot properties walk the model on every call).
         self._mass, self._gravity = robot.mass, robot.gravity
+        self._time_steps = None  # ((dt_min, dt_max), steps) of the last time_steps()
         self._default_weights = default_weights(robot)
         self.compiled_nlp = None
         self.release: ReleaseUpgrade | None = None  # the compiled library's flags, its release build
@@ -207,7 +208,11 @@ class WholeBodyMPC:
 
     # --- parameters -----------------------------------------------------------------------------------------
     def time_steps(self) -> np.ndarray:
-        return geometric_time_steps(self.n_nodes, self.config.dt_min, self.config.dt_max)
+        """The solve's geometric time steps [s] (N-1,) from ``config.dt_min`` to ``config.dt_max``."""
+        key = (self.config.dt_min, self.config.dt_max)
+        if self._time_steps is None or self._time_steps[0] != key:  # several calls per tick
+            self._time_steps = key, geometric_time_steps(self.n_nodes, *key)
+        return self._time_steps[1].copy()
 
     def desired_configuration(self, q_hat: np.ndarray, commands: Commands) -> np.ndarray:
         """Nominal pose at the measured base x, y and heading, level base at the nominal height, or at the

@@ -37,18 +37,30 @@ DEFAULT = DEFAULT_FLAGS
 RELEASE = RELEASE_FLAGS  # -O3 -march=native: ~4x the build time, 1.6x gcc's memory
 NODE0_VARIABLES = {"initial_state_variables": True}  # node 0's state pinned by equality rows
 PAPER_LAYOUT = {"initial_state_variables": True, "ee_force_input": True}  # and the arm force an input
-OPT_IN = ("baseline compiled, -O3 -march=native",)  # run only when named with --variant
+# run only when named with --variant
+OPT_IN = (
+    "baseline compiled, -O3 -march=native",
+    "baseline compiled, native, -O3 -march=native",
+    "direct, native",
+    "direct, native, -O3 -march=native",
+)
+#: The variants that solve with the direct Fatrop driver (wbmpc.solver.direct).
+DIRECT = ("direct, native", "direct, native, -O3 -march=native")
 VARIANTS = {
     "compiled, native": (True, "native", {}, False, DEFAULT),
     "compiled, native, -O3 -march=native": (True, "native", {}, False, RELEASE),
     "compiled, native, node-0 state variables": (True, "native", NODE0_VARIABLES, False, DEFAULT),
     "compiled, native, paper layout": (True, "native", PAPER_LAYOUT, False, DEFAULT),
     "compiled, generic": (True, "generic", {}, False, DEFAULT),
+    "direct, native": (True, "native", {}, False, DEFAULT),
+    "direct, native, -O3 -march=native": (True, "native", {}, False, RELEASE),
     "in-process, native": (False, "native", {}, False, DEFAULT),
     "in-process, generic": (False, "generic", {}, False, DEFAULT),
     "baseline compiled": (True, "generic", {}, True, DEFAULT),
     # Opt-in (--variant): the baseline built with the release flags too, for a like-for-like ratio.
     "baseline compiled, -O3 -march=native": (True, "generic", {}, True, RELEASE),
+    # Opt-in: a baseline that has the native BLASFEO (e.g. 0074138, issue 22's reference).
+    "baseline compiled, native, -O3 -march=native": (True, "native", {}, True, RELEASE),
     "baseline in-process": (False, "generic", {}, True, DEFAULT),
 }
 
@@ -62,6 +74,8 @@ from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 compiled, steps, warmup = {compiled}, {steps}, {warmup}
 flags = {{"compile_flags": {flags}}} if {flags} != ("-O1",) else {{}}
+if {direct}:
+    flags["direct"] = True
 robot = load_b1_z1()
 settings = OCPSettings(n_nodes=15, **{layout})  # the baseline's default layout is the paper's
 try:
@@ -75,18 +89,22 @@ else:
         solver = SolverSettings(compiled=compiled, **flags)
     mpc = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("trot")), solver)
 mpc.verbose = False
-mpc.prepare()  # build or load before timing
+if hasattr(mpc, "prepare"):
+    mpc.prepare()  # build or load before timing
+else:  # an older checkout builds on its first solve (a warm-up solve, not timed)
+    mpc.solve(robot.q_nominal, np.zeros(robot.nv))
+    mpc.reset()
 log = run_closed_loop(mpc, ClosedLoopConfig(duration=(steps + warmup) / 80.0), progress=False).log
 ms = 1e3 * np.asarray(log.solve_time[warmup:])
 timings = log.timings[warmup:]
 keys = ("evaluations", "solver", "search_direction", "initialization", "overhead", "total")
 profile = {{k: 1e3 * float(np.mean([t[k] for t in timings])) for k in keys if all(k in t for t in timings)}}
-if {baseline}:
-    library = "generic (the casadi wheel's)"
-else:
+try:
     from wbmpc.solver import blasfeo
     library = blasfeo.info()["choice"]
-build = mpc.compiled_nlp
+except ImportError:  # a checkout before the native BLASFEO
+    library = "generic (the casadi wheel's)"
+build = mpc.compiled_nlp  # None for the direct driver (its own library)
 record = {{
     "solve_ms": ms.tolist(),
     "mean_ms": float(ms.mean()),
@@ -118,6 +136,7 @@ def run_turn(variant: str, steps: int, warmup: int, baseline: Path | None) -> di
         warmup=warmup,
         baseline=is_baseline,
         flags=repr(tuple(flags)),
+        direct=variant in DIRECT,
     )
     proc = subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RECORD ")]
