@@ -581,10 +581,9 @@ class OCP:
         """
         reader = self._reader()
         forces = np.asarray(forces, dtype=float)
-        n_forces = self.plan_function.size1_out(3)  # 3 per contact frame of the plan
-        if reader.can_scatter and forces.ndim == 3 and forces.shape[1] * forces.shape[2] == n_forces:
-            flat_forces = forces.reshape(len(forces), -1)
-            return reader.scatter({"dq": dq, "v": v, "a": a, "forces": flat_forces, "tau": tau})
+        # The plan's forces hold every contact frame; a caller's decision-variable forces only go by stage.
+        if reader.can_scatter and forces.shape[1:] == (len(self.robot.contact_frames), 3):
+            return reader.scatter({"dq": dq, "v": v, "a": a, "forces": forces, "tau": tau})
         return self.join_by_stage(q_hat, dq, v, a, forces, tau)
 
     def join_by_stage(self, q_hat, dq, v, a, forces, tau) -> np.ndarray:

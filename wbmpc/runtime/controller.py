@@ -5,11 +5,10 @@ At every low-level tick (500 Hz) :class:`RuntimeController`
 1. checks the observation (a non-finite field or a wrong shape never reaches the estimator: the tick
    reports it and the controller keeps its last estimate);
 2. runs the state estimator (:class:`wbmpc.estimation.StateEstimator`, the contacts of the gait schedule)
-   once per sample period the observation stands for: a reading that superseded older ones (the
-   controller read the newest of two, or one was lost) is held over the missing periods, since the
-   estimator integrates the IMU and the legs' motion over a fixed period per update (fed only the newest
-   of its samples, it under-counted time: over DDS on two shared cores, where 28 % of the ticks found two
-   new readings, the estimated forward position gained 77 % of the true one);
+   over every sample period the observation stands for (its ``seq`` gap): a reading that superseded
+   older ones is held over the missing periods (:meth:`EstimatedState.update
+   <wbmpc.sim.hardware.EstimatedState.update>`; fed only the newest readings, over DDS on two shared cores
+   where 28 % of the ticks found two, the estimated forward position gained 77 % of the true one);
 3. interpolates the latest plan at the tick's time (:class:`wbmpc.control.low_level.LowLevelController`);
 4. returns the command for the motor drivers: setpoints, feed-forward and gains
    (``joint_pd="drive"``: the drivers close the PD loop), or the whole torque with zero gains
@@ -138,10 +137,10 @@ class RuntimeController:
         if last is not None:
             periods = min(max(round((observation.seq - last) / self.seq_step), 1), MAX_HELD_PERIODS)
         self._last_seq = observation.seq
-        imu, joints = observation.imu(), observation.joints()
         self.held_periods += periods - 1
-        for k in range(periods - 1, -1, -1):  # the missing periods first, at their own times
-            self.q_hat, self.v_hat = self.estimator.update(imu, joints, observation.stamp - k * self.dt)
+        self.q_hat, self.v_hat = self.estimator.update(
+            observation.imu(), observation.joints(), observation.stamp, periods
+        )
         return ""
 
     def command(self, t: float) -> MotorCommand:

@@ -22,8 +22,9 @@ import random
 import numpy as np
 
 from wbmpc import checks
+from wbmpc.model.quaternion import base_z_axis
 
-__all__ = ["RuntimeMetrics", "Series", "estimate_error", "tilt_errors"]
+__all__ = ["RuntimeMetrics", "Series", "aligned_truth", "estimate_error", "tilt_errors"]
 
 SERIES = ("period", "lateness", "compute", "plan_age", "latency")
 
@@ -204,6 +205,36 @@ class RuntimeMetrics:
         return out
 
 
+def aligned_truth(
+    t: np.ndarray, true_t: np.ndarray, true_base: np.ndarray, true_start: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The emulated robot's true base at each controller tick.
+
+    Only a simulated robot knows its true base: the emulated robot's process keeps it once per period.
+    Its clock starts with its physics, at the first command; ``true_start`` [s] is that moment on the
+    run's clock (the controller's first tick), so the two series are aligned to about one robot period.
+
+    Args:
+        t: Controller tick times [s] (n,); true_t: the robot's times since its physics started [s] (m,),
+        m >= 1; true_base: its true ``q[:7]`` (m, 7); true_start: when its physics started [s].
+
+    Returns:
+        ``(inside, base)``: which ticks lie within the robot's record (n,), and the true base at each tick
+        (n, 7) (the nearest later sample; held at the ends).
+    """
+    t, true_t = np.asarray(t, dtype=float), np.asarray(true_t, dtype=float) + true_start
+    inside = (t >= true_t[0]) & (t <= true_t[-1])
+    index = np.searchsorted(true_t, t).clip(0, len(true_t) - 1)
+    return inside, np.asarray(true_base, dtype=float)[index]
+
+
+def tilt_errors(q_hat: np.ndarray, q_true: np.ndarray) -> np.ndarray:
+    """Angles [rad] between the base z axes of two series of configurations (or base poses ``q[:7]``),
+    shape (n, >= 7)."""
+    cos = np.sum(base_z_axis(q_hat) * base_z_axis(q_true), axis=-1)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
 def estimate_error(
     t: np.ndarray,
     q_hat: np.ndarray,
@@ -212,50 +243,30 @@ def estimate_error(
     true_base: np.ndarray,
     true_start: float,
 ) -> dict | None:
-    """How far the controller's base estimate was from the emulated robot's true base, while controlled.
-
-    Only a simulated robot knows its true base: the emulated robot's process keeps it once per period.
-    Its clock starts with its physics, at the first command; ``true_start`` [s] is that moment on the
-    run's clock (the controller's first tick), so the two series are aligned to about one robot period.
+    """How far the controller's base estimate was from the emulated robot's true base, while controlled
+    (:func:`aligned_truth`).
 
     Args:
         t: Controller tick times [s] (n,); q_hat: the estimates (n, nq); damping: the ticks in damping (n,).
-        true_t: The robot's times since its physics started [s] (m,); true_base: its true ``q[:7]`` (m, 7).
-        true_start: When the robot's physics started, on the run's clock [s].
+        true_t, true_base, true_start: The robot's record (:func:`aligned_truth`).
 
     Returns:
         ``tilt_rad`` (the angle between the estimated and the true base z axes) and ``height_m`` (estimated
         minus true base height), each with ``p50``, ``p95``, ``max`` (absolute values), and ``samples``;
         ``None`` without a controlled tick inside the robot's record.
     """
-    t, true_t = np.asarray(t, dtype=float), np.asarray(true_t, dtype=float) + true_start
-    controlled = (
-        ~np.asarray(damping, dtype=bool) & (t >= true_t[0]) & (t <= true_t[-1]) if len(true_t) else []
-    )
+    if not len(true_t):
+        return None
+    inside, truth = aligned_truth(t, true_t, true_base, true_start)
+    controlled = inside & ~np.asarray(damping, dtype=bool)
     if not np.any(controlled):
         return None
-    rows = np.asarray(q_hat, dtype=float)[controlled]
-    truth = np.asarray(true_base, dtype=float)[
-        np.searchsorted(true_t, t[controlled]).clip(0, len(true_t) - 1)
-    ]
-
-    tilt = tilt_errors(rows[:, 3:7], truth[:, 3:7])
+    rows, truth = np.asarray(q_hat, dtype=float)[controlled], truth[controlled]
+    tilt = tilt_errors(rows, truth)
     height = np.abs(rows[:, 2] - truth[:, 2])
 
     def stats(values):
-        return {k: float(f(values)) for k, f in (("p50", np.median), ("max", np.max))} | {
-            "p95": float(np.percentile(values, 95))
-        }
+        p50, p95 = np.percentile(values, [50, 95])
+        return {"p50": float(p50), "p95": float(p95), "max": float(np.max(values))}
 
     return {"tilt_rad": stats(tilt), "height_m": stats(height), "samples": int(controlled.sum())}
-
-
-def tilt_errors(estimated: np.ndarray, true: np.ndarray) -> np.ndarray:
-    """Angles [rad] between the base z axes of two series of unit quaternions ``(x, y, z, w)`` (n, 4)."""
-
-    def z_axes(quats):  # third column of the rotation matrix
-        x, y, z, w = (quats[:, i] for i in range(4))
-        return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1)
-
-    cos = np.sum(z_axes(np.asarray(estimated, float)) * z_axes(np.asarray(true, float)), axis=1)
-    return np.arccos(np.clip(cos, -1.0, 1.0))

@@ -17,7 +17,20 @@ from __future__ import annotations
 import contextlib
 import os
 
-__all__ = ["realtime_priority"]
+__all__ = ["check_priority", "realtime_priority"]
+
+
+def check_priority(priority, name: str = "priority") -> int | None:
+    """``priority`` if it is ``None`` or a ``SCHED_FIFO`` priority (an integer in 1..99).
+
+    Raises:
+        ValueError: anything else, naming ``name``.
+    """
+    if priority is not None and (
+        isinstance(priority, bool) or not isinstance(priority, int) or not 1 <= priority <= 99
+    ):
+        raise ValueError(f"{name} must be a SCHED_FIFO priority in 1..99 or None, got {priority!r}")
+    return priority
 
 
 @contextlib.contextmanager
@@ -34,11 +47,9 @@ def realtime_priority(priority: int | None):
     Raises:
         ValueError: a priority outside 1-99.
     """
-    if priority is None:
+    if check_priority(priority) is None:
         yield "SCHED_OTHER (no real-time priority asked for)"
         return
-    if isinstance(priority, bool) or not isinstance(priority, int) or not 1 <= priority <= 99:
-        raise ValueError(f"a SCHED_FIFO priority must be an integer in 1..99, got {priority!r}")
     if not hasattr(os, "sched_setscheduler"):
         yield "SCHED_OTHER (this platform has no sched_setscheduler)"
         return

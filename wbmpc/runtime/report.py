@@ -129,21 +129,21 @@ def plot_estimate(run: RuntimeRun):
     """
     import matplotlib.pyplot as plt
 
-    from wbmpc.runtime.metrics import tilt_errors
+    from wbmpc.runtime.metrics import aligned_truth, tilt_errors
 
     if run.truth is None:
         raise ValueError("this run has no robot_truth.npz: only an emulated robot knows its true base")
     t, q_hat = np.asarray(run.log["t"]), np.asarray(run.log["q_hat"])
     true_t = np.asarray(run.truth["t"]) + t[0]  # the robot's physics starts at the first command
     base = np.asarray(run.truth["base"])
+    _, truth = aligned_truth(t, run.truth["t"], base, t[0])
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     for ax, i, name in ((axes[0], 0, "forward position x [m]"), (axes[1], 2, "base height z [m]")):
         ax.plot(true_t, base[:, i], color="k", lw=1.2, label="true")
         ax.plot(t, q_hat[:, i], color="tab:blue", lw=0.8, label="estimated")
         ax.set(xlabel="time [s]", ylabel=name)
         ax.legend(loc="best", fontsize=8)
-    index = np.searchsorted(true_t, t).clip(0, len(true_t) - 1)
-    axes[2].plot(t, np.degrees(tilt_errors(q_hat[:, 3:7], base[index, 3:7])), lw=0.7, color="tab:blue")
+    axes[2].plot(t, np.degrees(tilt_errors(q_hat, truth)), lw=0.7, color="tab:blue")
     axes[2].set(xlabel="time [s]", ylabel="tilt error [deg]", title="Estimated vs true base z axis")
     damping = run.damping_from_s
     for ax in axes:

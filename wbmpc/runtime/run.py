@@ -35,7 +35,7 @@ import numpy as np
 from wbmpc.runtime.accounts import read_account
 from wbmpc.runtime.faults import Faults
 from wbmpc.runtime.mpc_worker import MPCRecipe, run_worker
-from wbmpc.runtime.priority import realtime_priority
+from wbmpc.runtime.priority import check_priority, realtime_priority
 from wbmpc.runtime.robot_process import EmulatedRobotSpec, run_emulated_robot
 
 __all__ = ["CPU_LAYOUTS", "RuntimeConfig", "cpu_sets", "run_runtime"]
@@ -115,14 +115,7 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.cpu_layout must be one of {CPU_LAYOUTS}, got {layout!r}")
         if not isinstance(self.faults, Faults):
             raise ValueError(f"RuntimeConfig.faults must be a Faults, got {self.faults!r}")
-        priority = self.realtime_priority
-        if priority is not None and (
-            isinstance(priority, bool) or not isinstance(priority, int) or not 1 <= priority <= 99
-        ):
-            raise ValueError(
-                "RuntimeConfig.realtime_priority must be a SCHED_FIFO priority in 1..99 or None, "
-                f"got {priority!r}"
-            )
+        check_priority(self.realtime_priority, "RuntimeConfig.realtime_priority")
         if self.direct is None:
             self.direct = bool(self.compiled)
         if self.direct and not self.compiled:

@@ -295,9 +295,23 @@ class EstimatedState:
         imu, joints = self.readings(q, v)
         return self.update(imu, joints, t)
 
-    def update(self, imu: ImuReading, joints: JointReading, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def update(
+        self, imu: ImuReading, joints: JointReading, t: float, periods: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The estimate ``(q_hat, v_hat)`` from readings taken at ``t`` [s] (the contacts of the schedule
-        then)."""
+        then).
+
+        Args:
+            periods: Sample periods the readings stand for (> 1: they superseded older ones, which were
+                lost or skipped). The filter advances one period per update, so it is advanced over each
+                missing period too, with these readings held, at that period's time: fed only the newest
+                readings it would under-count time (the integrated position lagging the truth).
+        """
+        for k in range(periods - 1, 0, -1):
+            self._update_once(imu, joints, t - k * self.dt)
+        return self._update_once(imu, joints, t)
+
+    def _update_once(self, imu: ImuReading, joints: JointReading, t: float) -> tuple[np.ndarray, np.ndarray]:
         schedule, estimator = self.schedule, self.estimator
         both = _contact_and_trust(schedule, t) if _one_sample(schedule) else None
         if both is None or len(both[0]) != estimator.n_feet:
