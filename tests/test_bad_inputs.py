@@ -1136,10 +1136,17 @@ CATALOGUE = [
     ),
     (
         "silent",
-        "runtime direct driver without a compiled library",
-        lambda: _runtime_config(direct=True, compiled=False),
+        "solver threads 0",
+        lambda: SolverSettings(threads=0),
         C,
-        "direct needs compiled=True",
+        "SolverSettings.threads must be an integer >= 1 and <= 8",
+    ),
+    (
+        "silent",
+        "solver direct not a bool",
+        lambda: SolverSettings(direct="yes"),
+        C,
+        "SolverSettings.direct must be True, False or None",
     ),
     (
         "silent",

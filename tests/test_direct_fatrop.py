@@ -187,7 +187,7 @@ def test_behind_the_mpc_same_statuses_and_plans(setup):
 def test_direct_settings_are_checked():
     with pytest.raises(ValueError, match="direct needs solver='fatrop'"):
         SolverSettings(solver="ipopt", direct=True)
-    with pytest.raises(ValueError, match="True or False"):
+    with pytest.raises(ValueError, match="True, False or None"):
         SolverSettings(direct="yes")
 
 

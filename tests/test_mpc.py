@@ -79,8 +79,12 @@ def test_the_arm_force_as_parameter_gives_the_same_plan(robot):
     np.testing.assert_allclose(parameter.forces[:, -1], np.tile(commands.ee_force, (7, 1)))
 
 
-def test_fatrop_detects_the_stage_structure(standing):
-    mpc, _ = standing
+def test_fatrop_detects_the_stage_structure(robot):
+    """The casadi plugin's structure detection finds the OCP's stages (the direct driver is given them)."""
+    mpc = WholeBodyMPC(
+        robot, OCPSettings(n_nodes=15), MPCConfig(gait=make_gait("stand")), SolverSettings(direct=False)
+    )
+    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0).success
     stats = mpc._solver(cold=True).stats()
     expected = mpc.ocp.stage_sizes()
     # Node 0's state is a parameter: Fatrop's detection takes the first 44 of u_0's 50 entries as "x_0".

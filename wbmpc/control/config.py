@@ -9,6 +9,7 @@ re-exported from :mod:`wbmpc.control.mpc`.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -221,13 +222,20 @@ class SolverSettings:
         cold_max_iter: Iteration cap of a cold start (the first solve).
         retry_max_iter: Iteration cap of the cold retry after a failed warm solve (``MPCConfig.cold_retry``).
         mu_init_warm, mu_init_cold: Initial barrier parameter of warm and cold starts.
-        direct: Solve with the direct primal-dual warm-started Fatrop driver (:mod:`wbmpc.solver.direct`,
-            compiled at set-up and cached; ``compile_flags`` are its stage functions' flags) instead of the
-            casadi plugin, which stays its fallback. Fatrop only.
+        direct: Solve with the direct primal-dual warm-started Fatrop driver (:mod:`wbmpc.solver.direct`)
+            instead of the casadi plugin, which stays its fallback. With ``compiled`` its stage functions are
+            generated C (built per problem and cached; ``compile_flags`` are their flags); without, the
+            same functions run in CasADi's virtual machine inside the driver, which is compiled once per
+            machine in a few seconds (no problem is compiled). ``None`` (default): the direct driver in
+            process, the plugin when ``compiled`` (``direct=True`` for the compiled driver). Fatrop only.
+        threads: Threads on which the direct driver evaluates the stages (1..8; the solution does not depend
+            on it). ``None`` (default): 2 on a machine with 2 cores or more for the in-process driver (its
+            evaluations are most of its time), 1 for the compiled one (a control loop shares the cores).
 
     Raises:
         ValueError: On an unknown solver, ``compiled`` or ``direct`` without Fatrop, a non-positive tolerance
-            or barrier parameter, an iteration cap below 1, or flags that are not strings.
+            or barrier parameter, an iteration cap below 1, threads outside 1..8, or flags that are not
+            strings.
     """
 
     solver: str = "fatrop"
@@ -241,7 +249,22 @@ class SolverSettings:
     retry_max_iter: int = 100
     mu_init_warm: float = WARM_MU_INIT
     mu_init_cold: float = 1e-1
-    direct: bool = False
+    direct: bool | None = None
+    threads: int | None = None
+
+    @property
+    def direct_driver(self) -> bool:
+        """Whether the MPC solves with the direct driver (``direct``, its ``None`` resolved)."""
+        if self.direct is None:
+            return self.solver == "fatrop" and not self.compiled
+        return bool(self.direct)
+
+    @property
+    def driver_threads(self) -> int:
+        """The direct driver's evaluation threads (``threads``, its ``None`` resolved)."""
+        if self.threads is not None:
+            return int(self.threads)
+        return 2 if self.direct_driver and not self.compiled and (os.cpu_count() or 1) >= 2 else 1
 
     def __post_init__(self):
         for name in ("tol", "mu_init_warm", "mu_init_cold"):
@@ -263,10 +286,12 @@ class SolverSettings:
         if not isinstance(self.release_build, bool | np.bool_):
             build = self.release_build
             raise ValueError(f"SolverSettings.release_build must be True or False, got {build!r}")
-        if not isinstance(self.direct, bool | np.bool_):
-            raise ValueError(f"SolverSettings.direct must be True or False, got {self.direct!r}")
+        if self.direct is not None and not isinstance(self.direct, bool | np.bool_):
+            raise ValueError(f"SolverSettings.direct must be True, False or None, got {self.direct!r}")
         if self.direct and self.solver != "fatrop":
             raise ValueError("SolverSettings.direct needs solver='fatrop' (it is a Fatrop driver)")
+        if self.threads is not None:
+            checks.integer("SolverSettings.threads", self.threads, low=1, high=8)
         checks.names("SolverSettings.compile_flags", self.compile_flags, unique=False)
         object.__setattr__(self, "compile_flags", tuple(self.compile_flags))
         if self.release_flags is not None:

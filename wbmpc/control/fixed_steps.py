@@ -38,7 +38,7 @@ class FixedStepMPC(WholeBodyMPC):
     """
 
     def __init__(self, robot, settings=None, config=None, solver=None, *, steps: int = 1):
-        if solver is None or not solver.direct:
+        if solver is None or not solver.direct_driver:
             raise ValueError("FixedStepMPC needs SolverSettings(direct=True) (the direct Fatrop driver)")
         if int(steps) != steps or steps < 1:
             raise ValueError(f"steps must be an integer >= 1, got {steps!r}")

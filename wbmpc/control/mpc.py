@@ -165,7 +165,7 @@ class WholeBodyMPC:
         (``max_iter`` overrides their iteration cap); compiled (cached) with ``SolverSettings.compiled``; the
         direct driver's stand-in (:class:`wbmpc.solver.direct.adapter.DirectNlpsol`) with ``direct``."""
         cfg = self.solver_settings
-        if cfg.direct:  # the direct Fatrop driver, called like an nlpsol; the plugin path is its fallback
+        if cfg.direct_driver:  # called like an nlpsol; the plugin path is its fallback
             from wbmpc.solver.direct.adapter import DirectNlpsol
 
             return DirectNlpsol.for_mpc(self, name, cold, max_iter)
@@ -183,7 +183,7 @@ class WholeBodyMPC:
         is cached, else ``compile_flags`` (:class:`wbmpc.solver.release.ReleaseUpgrade`)."""
         if self.release is None:
             cfg = self.solver_settings
-            kind = "direct" if cfg.direct else "nlp"
+            kind = "direct" if cfg.direct_driver else "nlp"
             self.release = ReleaseUpgrade(
                 self.ocp, kind, cfg.compile_flags, cfg.release_flags, build=cfg.release_build
             )
@@ -197,7 +197,7 @@ class WholeBodyMPC:
         built = list(self._solvers)
         self._solvers.clear()
         self.compiled_nlp = None
-        if self.solver_settings.direct:
+        if self.solver_settings.direct_driver:
             from wbmpc.solver.direct.adapter import switch_driver
 
             switch_driver(self)  # the warm duals carry over

@@ -46,7 +46,7 @@ class MPCRecipe:
             (:attr:`MPCConfig.cold_retry <wbmpc.control.config.MPCConfig.cold_retry>`); off by default on
             the wall clock, where it makes a failed tick last a second.
         direct: Solve with the direct primal-dual warm-started Fatrop driver
-            (:attr:`SolverSettings.direct <wbmpc.control.config.SolverSettings.direct>`; needs ``compiled``).
+            (:attr:`SolverSettings.direct <wbmpc.control.config.SolverSettings.direct>`).
     """
 
     gait: str = "stand:2,trot@0.2:6,stand:2"
@@ -91,7 +91,8 @@ class MPCRecipe:
         settings = OCPSettings(n_nodes=self.nodes, torque_limit_fraction=self.torque_limit_fraction)
         # The release library if it is cached, but no background build on the wall clock: gcc would take a
         # core from the loops mid-run.
-        solver = SolverSettings(compiled=self.compiled, direct=self.direct, release_build=False)
+        # One evaluation thread: the controller and the robot have the other cores.
+        solver = SolverSettings(compiled=self.compiled, direct=self.direct, release_build=False, threads=1)
         if self.max_iter is not None:
             solver = replace(solver, max_iter=self.max_iter)
         config = MPCConfig(gait=self.schedule(), cold_retry=self.cold_retry)
@@ -169,7 +170,7 @@ def run_worker(
             os.nice(nice)  # the controller's loop must get a core the moment it wakes
         mpc = recipe.build()
         settings = mpc.solver_settings
-        stats.solver = {"direct": bool(settings.direct), "compiled": bool(settings.compiled)}
+        stats.solver = {"direct": settings.direct_driver, "compiled": bool(settings.compiled)}
         if settings.compiled:
             stats.solver["flags"] = list(mpc.library_flags())
         q0 = np.asarray(q0, dtype=float)

@@ -61,7 +61,8 @@ class RuntimeConfig:
             counted in the loop's own ticks (a stall of the whole machine is not the robot's silence).
         nodes, compiled: The MPC; max_iter: its warm solves' iteration cap (a failed solve is not
             published; no cold retry on the wall clock); direct: the worker solves with the direct Fatrop
-            driver (:mod:`wbmpc.solver.direct`); ``None`` (default): when compiled. Its whole tick is about
+            driver (:mod:`wbmpc.solver.direct`; compiled or, without ``compiled``, its in-process build, on
+            one thread beside the loops); ``None`` (default): True. Its whole tick is about
             half the plugin's, which keeps the plan age at use within two MPC periods on 2 cores (p95
             20 ms over DDS, 60 s, 2026-12-04; the plugin's solves alone take 13-15 ms).
         faults: Faults to inject (:class:`~wbmpc.runtime.faults.Faults`), for tests.
@@ -117,9 +118,7 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.faults must be a Faults, got {self.faults!r}")
         check_priority(self.realtime_priority, "RuntimeConfig.realtime_priority")
         if self.direct is None:
-            self.direct = bool(self.compiled)
-        if self.direct and not self.compiled:
-            raise ValueError("RuntimeConfig.direct needs compiled=True (the direct driver is compiled)")
+            self.direct = True
         if self.controller_phase is not None and not 0.0 <= self.controller_phase < self.period:
             raise ValueError(
                 f"RuntimeConfig.controller_phase must be in [0, period = {self.period}) s or None, "

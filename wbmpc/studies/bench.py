@@ -63,6 +63,10 @@ def run_case(
             pinned by equality rows (``ee_force_input``, ``initial_state_variables`` of
             :class:`wbmpc.ocp.OCPSettings`).
         compile_flags: gcc flags of the compiled library (default: the MPC's).
+
+    The solves go through the casadi plugin, compiled or in process (``SolverSettings(direct=False)``), as
+    the committed benchmarks did; the direct driver has its own studies (:mod:`wbmpc.studies.realtime`'s
+    ``direct, ...`` variants, :mod:`wbmpc.studies.direct_fatrop`).
     """
     from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
     from wbmpc.ocp import OCPSettings
@@ -74,7 +78,9 @@ def run_case(
     config = MPCConfig(gait=make_gait("trot"))
     flags = {} if compile_flags is None else {"compile_flags": tuple(compile_flags)}
     # The flags measured: no switch to a background release library mid-run.
-    solver_settings = SolverSettings(solver=solver, compiled=compiled, release_flags=None, **flags)
+    solver_settings = SolverSettings(
+        solver=solver, compiled=compiled, release_flags=None, direct=False, **flags
+    )
     settings = OCPSettings(
         n_nodes=nodes,
         formulation=formulation,

@@ -43,9 +43,19 @@ OPT_IN = (
     "baseline compiled, native, -O3 -march=native",
     "direct, native",
     "direct, native, -O3 -march=native",
+    "direct, in-process, native",
+    "direct, in-process, native, 1 thread",
+    "direct, native, -O3 -march=native, 2 threads",
 )
-#: The variants that solve with the direct Fatrop driver (wbmpc.solver.direct).
-DIRECT = ("direct, native", "direct, native, -O3 -march=native")
+#: The variants that solve with the direct Fatrop driver (wbmpc.solver.direct) and its evaluation threads
+#: (None: the settings' default). The others pass direct=False (the plugin), except the baselines.
+DIRECT = {
+    "direct, native": None,
+    "direct, native, -O3 -march=native": None,
+    "direct, native, -O3 -march=native, 2 threads": 2,
+    "direct, in-process, native": None,
+    "direct, in-process, native, 1 thread": 1,
+}
 VARIANTS = {
     "compiled, native": (True, "native", {}, False, DEFAULT),
     "compiled, native, -O3 -march=native": (True, "native", {}, False, RELEASE),
@@ -54,7 +64,11 @@ VARIANTS = {
     "compiled, generic": (True, "generic", {}, False, DEFAULT),
     "direct, native": (True, "native", {}, False, DEFAULT),
     "direct, native, -O3 -march=native": (True, "native", {}, False, RELEASE),
+    "direct, native, -O3 -march=native, 2 threads": (True, "native", {}, False, RELEASE),
     "in-process, native": (False, "native", {}, False, DEFAULT),
+    # The direct driver in process: its stage functions in CasADi's VM (nothing compiled per problem).
+    "direct, in-process, native": (False, "native", {}, False, DEFAULT),
+    "direct, in-process, native, 1 thread": (False, "native", {}, False, DEFAULT),
     "in-process, generic": (False, "generic", {}, False, DEFAULT),
     "baseline compiled": (True, "generic", {}, True, DEFAULT),
     # Opt-in (--variant): the baseline built with the release flags too, for a like-for-like ratio.
@@ -74,8 +88,10 @@ from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 compiled, steps, warmup = {compiled}, {steps}, {warmup}
 flags = {{"compile_flags": {flags}}} if {flags} != ("-O1",) else {{}}
-if {direct}:
-    flags["direct"] = True
+if not {baseline}:  # a checkout before the direct driver has no such settings
+    flags["direct"] = {direct}
+    if {threads} is not None:
+        flags["threads"] = {threads}
 robot = load_b1_z1()
 settings = OCPSettings(n_nodes=15, **{layout})  # the baseline's default layout is the paper's
 try:
@@ -137,6 +153,7 @@ def run_turn(variant: str, steps: int, warmup: int, baseline: Path | None) -> di
         baseline=is_baseline,
         flags=repr(tuple(flags)),
         direct=variant in DIRECT,
+        threads=DIRECT.get(variant),
     )
     proc = subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RECORD ")]

@@ -1,11 +1,11 @@
 """The direct driver behind :class:`~wbmpc.control.mpc.WholeBodyMPC`: an object called like its ``nlpsol``.
 
-``SolverSettings(direct=True)`` makes :meth:`WholeBodyMPC.make_solver` return a :class:`DirectNlpsol`
-instead of the casadi-plugin ``nlpsol``. It takes the same keyword arguments (``x0``, ``p``, ``lbg``,
-``ubg``, ``lam_g0``), returns the same outputs (``x``, ``g``, ``lam_g``, ``f``) and has a ``stats()`` in the
-plugin's format (``success``, ``return_status``, ``iter_count``, ``fatrop.return_flag`` and its timings),
-so the MPC's convergence test, named statuses (:func:`wbmpc.solver.statuses.solver_status`), cold retry
-and fallbacks run unchanged.
+``SolverSettings(direct=True)`` (and the default in process) makes :meth:`WholeBodyMPC.make_solver` return
+a :class:`DirectNlpsol` instead of the casadi-plugin ``nlpsol``. It takes the same keyword arguments
+(``x0``, ``p``, ``lbg``, ``ubg``, ``lam_g0``), returns the same outputs (``x``, ``g``, ``lam_g``, ``f``)
+and has a ``stats()`` in the plugin's format (``success``, ``return_status``, ``iter_count``,
+``fatrop.return_flag`` and its timings), so the MPC's convergence test, named statuses
+(:func:`wbmpc.solver.statuses.solver_status`), cold retry and fallbacks run unchanged.
 
 The warm start the MPC passes (``lam_g0``, the last converged plan's multipliers) is completed here with
 that solve's bound multipliers and final barrier parameter, which the plan does not carry: the cold,
@@ -13,7 +13,8 @@ warm and retry solvers of one MPC share one driver, and it remembers them for th
 An ``lam_g0`` it did not return (another solver's) starts the duals as Fatrop does (as the plugin).
 
 The plugin path stays the fallback: if the driver cannot be built (no g++, an unusable library), the MPC
-gets the plugin's ``nlpsol`` with a warning; a solve in which the driver raises is solved by the plugin.
+gets the plugin's ``nlpsol`` (compiled or in process, as the settings say) with a warning; a solve in which
+the driver raises is solved by the plugin.
 """
 
 from __future__ import annotations
@@ -70,7 +71,8 @@ class DirectNlpsol:
                 )
                 return plugin_nlpsol(mpc, name, cold, max_iter)
             _DRIVERS[mpc] = driver
-            mpc.release.start()  # the release library, in the background (if wanted and not cached)
+            if mpc.solver_settings.compiled:
+                mpc.release.start()  # the release library, in the background (if wanted and not cached)
         return cls(mpc, name, cold, max_iter, driver)
 
     def __call__(self, *, x0, p, lbg=None, ubg=None, lam_g0=None, **_) -> dict:
@@ -138,8 +140,15 @@ class DirectNlpsol:
 
 def _new_driver(mpc) -> DirectFatrop:
     cfg = mpc.solver_settings
+    flags = mpc.library_flags() if cfg.compiled else tuple(cfg.compile_flags)  # VM: nothing compiled per OCP
     return DirectFatrop(
-        mpc.ocp, tol=cfg.tol, max_iter=cfg.max_iter, flags=mpc.library_flags(), progress=mpc.verbose
+        mpc.ocp,
+        tol=cfg.tol,
+        max_iter=cfg.max_iter,
+        flags=flags,
+        progress=mpc.verbose,
+        compiled=cfg.compiled,
+        threads=cfg.driver_threads,
     )
 
 
@@ -155,11 +164,13 @@ def switch_driver(mpc) -> DirectFatrop:
 
 
 def plugin_nlpsol(mpc, name: str, cold: bool, max_iter: int | None = None):
-    """The casadi-plugin compiled ``nlpsol`` of ``mpc`` (what ``make_solver`` builds without the driver)."""
+    """The casadi-plugin ``nlpsol`` of ``mpc`` (what ``make_solver`` builds without the driver): compiled
+    with ``SolverSettings.compiled``, else in process."""
     cfg = mpc.solver_settings
-    if mpc.compiled_nlp is None:
-        mpc.compiled_nlp = codegen.build(mpc.ocp, tuple(cfg.compile_flags), progress=mpc.verbose)
+    library = None
+    if cfg.compiled:
+        if mpc.compiled_nlp is None:
+            mpc.compiled_nlp = codegen.build(mpc.ocp, tuple(cfg.compile_flags), progress=mpc.verbose)
+        library = mpc.compiled_nlp.library
     options = mpc.solver_options(cold, max_iter)
-    return make_nlpsol(
-        name, "fatrop", mpc.ocp.nlp, options, mpc.compiled_nlp.library, n_nodes=mpc.ocp.n_nodes
-    )
+    return make_nlpsol(name, "fatrop", mpc.ocp.nlp, options, library, n_nodes=mpc.ocp.n_nodes)

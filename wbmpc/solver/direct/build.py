@@ -6,6 +6,10 @@ file per stage type compiled in parallel, a table that hands them to the driver,
 its ``libfatrop.so`` and ``libblasfeo.so`` (no source build of a dependency). Cached like
 :func:`wbmpc.solver.codegen.build`: the key is the codegen key of the OCP (robot model, settings, compiler,
 casadi, wbmpc sources) plus the driver's own sources and flags; a file lock serialises builds of one key.
+
+Without a compiled problem (:func:`build_vm`, :func:`functions_file`): the same driver built once per
+machine with ``-DWBMPC_DIRECT_VM`` (a few seconds, no problem in it), which evaluates the stage functions
+serialized from Python with CasADi's virtual machine through libcasadi's C API.
 """
 
 from __future__ import annotations
@@ -40,6 +44,8 @@ DRIVER_SOURCE = Path(__file__).resolve().parents[1] / "c" / "fatrop_direct.cpp"
 DEFAULT_FLAGS = codegen.DEFAULT_FLAGS
 DRIVER_FLAGS = ("-O2", "-std=c++17")
 LIBRARY_NAME = "libwbmpc_direct.so"
+VM_LIBRARY_NAME = "libwbmpc_direct_vm.so"
+FUNCTIONS_NAME = "functions.casadi"
 _CODEGEN_OPTIONS = {"with_header": False, "casadi_int": "long long int", "casadi_real": "double"}
 
 
@@ -98,14 +104,7 @@ def build(
         FileNotFoundError: the casadi wheel has no Fatrop headers or libraries.
         RuntimeError: a compiler error (the message holds its tail).
     """
-    lib_dir = casadi_dir()
-    for needed in (lib_dir / "include" / "fatrop" / "fatrop.hpp", lib_dir / "libfatrop.so"):
-        if not needed.exists():
-            raise FileNotFoundError(
-                f"the casadi wheel has no {needed.name} at {needed}: the direct driver needs it"
-            )
-    if shutil.which("g++") is None or shutil.which("gcc") is None:
-        raise FileNotFoundError("the direct Fatrop driver needs gcc and g++ on PATH")
+    _check_toolchain(casadi_dir())
     key, description = cache_key(ocp, tuple(flags))
     folder = Path(directory or codegen.cache_dir()) / f"direct-{key}"
 
@@ -128,6 +127,116 @@ def cached(ocp: OCP, flags: tuple[str, ...], directory: Path | None = None) -> D
     if info.get("library_sha256") != _sha256(library):
         return None
     return DirectLibrary(library, key, info["build_s"], False)
+
+
+def build_vm(directory: Path | None = None, progress: bool = True, force: bool = False) -> DirectLibrary:
+    """Compile (or reuse) the direct driver that evaluates serialized stage functions in CasADi's VM.
+
+    It holds no problem: one library per driver source, casadi and compiler, for every OCP (the functions
+    come from :func:`functions_file`). Linked against the wheel's ``libcasadi.so`` too.
+
+    Raises:
+        FileNotFoundError: no Fatrop or libcasadi in the casadi wheel, or no g++.
+        RuntimeError: a compiler error (the message holds its tail).
+    """
+    lib_dir = casadi_dir()
+    _check_toolchain(lib_dir, lib_dir / "libcasadi.so")
+    description = {
+        "direct_version": DIRECT_VERSION,
+        "driver_flags": [*DRIVER_FLAGS, "-DWBMPC_DIRECT_VM"],
+        "driver_sha256": _sha256(DRIVER_SOURCE),
+        "casadi": ca.__version__,
+        "compiler": codegen._compiler_version(),
+    }
+    key = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+    folder = Path(directory or codegen.cache_dir()) / f"direct-vm-{key}"
+    folder.mkdir(parents=True, exist_ok=True)
+    library, record = folder / VM_LIBRARY_NAME, folder / "build.json"
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not force and library.is_file() and record.is_file():
+            if json.loads(record.read_text()).get("library_sha256") == _sha256(library):
+                return DirectLibrary(library, key, json.loads(record.read_text())["build_s"], False)
+        if progress:
+            print(f"[wbmpc.solver.direct] compiling the VM driver ({key}) ...", flush=True)
+        start = time.perf_counter()
+        with tempfile.TemporaryDirectory(prefix=".build-", dir=folder) as tmp:
+            include = lib_dir / "include"
+            _run(
+                [
+                    "g++",
+                    *description["driver_flags"],
+                    "-fPIC",
+                    "-shared",
+                    str(DRIVER_SOURCE),
+                    f"-I{include}",
+                    f"-I{include / 'blasfeo' / 'include'}",
+                    "-o",
+                    str(Path(tmp) / VM_LIBRARY_NAME),
+                    f"-L{lib_dir}",
+                    "-lcasadi",
+                    "-lfatrop",
+                    "-lblasfeo",
+                    f"-Wl,-rpath,{lib_dir}",
+                ],
+                Path(tmp),
+            )
+            os.replace(Path(tmp) / VM_LIBRARY_NAME, library)
+        build_s = time.perf_counter() - start
+        record.write_text(
+            json.dumps(
+                {**description, "key": key, "build_s": build_s, "library_sha256": _sha256(library)}, indent=2
+            )
+        )
+        if progress:
+            print(f"[wbmpc.solver.direct] built {library} in {build_s:.0f} s", flush=True)
+        return DirectLibrary(library, key, build_s, True)
+
+
+def functions_file(ocp: OCP, directory: Path | None = None) -> Path:
+    """The stage functions of ``ocp`` serialized for the VM driver (:func:`build_vm`), cached by the
+    problem's key (:func:`cache_key`); written once, atomically."""
+    key, _ = cache_key(ocp, ("vm",))
+    folder = Path(directory or codegen.cache_dir()) / f"direct-functions-{key}"
+    path = folder / FUNCTIONS_NAME
+    if path.is_file():
+        return path
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if path.is_file():
+            return path
+        functions = [*_stage_functions(ocp).values(), stage_parameters_function(ocp)]
+        with tempfile.TemporaryDirectory(prefix=".write-", dir=folder) as tmp:
+            written = Path(tmp) / FUNCTIONS_NAME
+            serializer = ca.FileSerializer(str(written))
+            serializer.pack(functions)
+            del serializer  # closes the file
+            os.replace(written, path)
+    return path
+
+
+def _stage_functions(ocp: OCP) -> dict[str, ca.Function]:
+    """Every stage type's functions of ``ocp`` by name (``wbmpc_direct_<kind>_<which>``)."""
+    return {f.name(): f for functions in _kind_functions(ocp).values() for f in functions.values()}
+
+
+def _kind_functions(ocp: OCP) -> dict[str, dict[str, ca.Function]]:
+    """The functions (:func:`stage_problem`) of each stage type the horizon uses, in ``KINDS`` order."""
+    layouts = {}
+    for layout in stage_layouts(ocp):
+        layouts.setdefault(layout.kind, layout)
+    return {kind: stage_problem(ocp, layouts[kind]) for kind in KINDS if kind in layouts}
+
+
+def _check_toolchain(lib_dir: Path, *extra: Path) -> None:
+    for needed in (lib_dir / "include" / "fatrop" / "fatrop.hpp", lib_dir / "libfatrop.so", *extra):
+        if not needed.exists():
+            raise FileNotFoundError(
+                f"the casadi wheel has no {needed.name} at {needed}: the direct driver needs it"
+            )
+    if shutil.which("g++") is None or shutil.which("gcc") is None:
+        raise FileNotFoundError("the direct Fatrop driver needs gcc and g++ on PATH")
 
 
 def build_in(
@@ -196,14 +305,9 @@ def build_in(
 
 def _generate(ocp: OCP, folder: Path) -> list[Path]:
     """Write one C file per stage type, the stage-parameter function and the table; their paths."""
-    layouts = {}
-    for layout in stage_layouts(ocp):
-        layouts.setdefault(layout.kind, layout)
     sources, table = [], {}
-    for index, kind in enumerate(KINDS):
-        if kind not in layouts:
-            continue
-        functions = stage_problem(ocp, layouts[kind])
+    for kind, functions in _kind_functions(ocp).items():
+        index = KINDS.index(kind)
         generator = ca.CodeGenerator(f"wbmpc_direct_{kind}.c", _CODEGEN_OPTIONS)
         for which in FUNCTIONS:
             generator.add(functions[which])

@@ -32,6 +32,7 @@ from wbmpc.solver.statuses import FATROP_FLAGS
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 _INT_P = ctypes.POINTER(ctypes.c_int)
 N_REPORT = 10
+MAX_THREADS = 8  # fatrop_direct.cpp's MAX_THREADS
 
 
 @dataclass
@@ -67,7 +68,7 @@ class DirectResult:
 
 
 class DirectFatrop:
-    """Fatrop driven directly over the OCP's compiled stage functions, with a primal-dual warm start.
+    """Fatrop driven directly over the OCP's stage functions, with a primal-dual warm start.
 
     Args:
         ocp: The problem (its stage definitions give the functions; its ``lbg``/``ubg`` the bounds).
@@ -77,10 +78,16 @@ class DirectFatrop:
         flags: gcc flags of the generated stage functions (cache key).
         library: A built library (else :func:`wbmpc.solver.direct.build.build` builds or reuses one).
         progress: Print build progress.
+        compiled: Compiled stage functions (generated C, built per problem and flags); False: the same
+            functions serialized and evaluated by CasADi's virtual machine inside the driver
+            (:func:`~wbmpc.solver.direct.build.build_vm`, built once in seconds: no problem to compile).
+        threads: Threads that evaluate the stages' Hessians, Jacobians and residuals at once (1..8; 1 is
+            the caller's thread only). The result does not depend on it.
 
     Raises:
         ValueError: not an OCP, flags that are not strings, a tolerance or bound push <= 0, an iteration
-            cap < 1, a library that does not load or a driver that cannot be created (the reason).
+            cap < 1, threads outside 1..8, a library that does not load or a driver that cannot be
+            created (the reason).
         FileNotFoundError, RuntimeError: the build's (no Fatrop in the wheel or no compiler; a compiler
             error).
     """
@@ -95,6 +102,8 @@ class DirectFatrop:
         flags: tuple[str, ...] = direct_build.DEFAULT_FLAGS,
         library: Path | None = None,
         progress: bool = True,
+        compiled: bool = True,
+        threads: int = 1,
     ):
         if not isinstance(ocp, OCP):
             raise ValueError(f"ocp must be a wbmpc.ocp.OCP, got {ocp!r}")
@@ -102,12 +111,20 @@ class DirectFatrop:
         checks.number("tol", tol, low=0.0, low_open=True)
         checks.integer("max_iter", max_iter, low=1)
         checks.number("bound_push", bound_push, low=0.0, low_open=True)
+        checks.integer("threads", threads, low=1, high=MAX_THREADS)
         blasfeo.activate()  # the process's BLASFEO before libfatrop is mapped (as the plugin path)
         self.ocp = ocp
+        self.compiled = bool(compiled)
         self.layouts = stage_layouts(ocp)
         built = None
+        functions = b""
+        if not self.compiled:
+            functions = str(direct_build.functions_file(ocp)).encode()
         if library is None:
-            built = direct_build.build(ocp, tuple(flags), progress=progress)
+            if self.compiled:
+                built = direct_build.build(ocp, tuple(flags), progress=progress)
+            else:
+                built = direct_build.build_vm(progress=progress)
             library = built.library
         self.built = built
         self.library_path = Path(library)
@@ -152,6 +169,7 @@ class DirectFatrop:
             self.n_g,
             self.n_p,
             n_s,
+            functions,
             err,
             len(err),
         )
@@ -159,6 +177,8 @@ class DirectFatrop:
             raise ValueError(f"the direct Fatrop driver could not be created: {err.value.decode()}")
         self._handle = ctypes.c_void_p(handle)
         self.n_ineq = int(self._lib.wbmpc_direct_n_ineq(self._handle))
+        self.threads = 1
+        self.set_threads(threads)
         self.tol, self.max_iter = float(tol), int(max_iter)
         self.options: dict[str, float | int] = {}  # what set_option last set
         self.set_option("tol", float(tol))
@@ -190,9 +210,11 @@ class DirectFatrop:
                 ctypes.c_int,
                 ctypes.c_int,
                 ctypes.c_char_p,
+                ctypes.c_char_p,
                 ctypes.c_int,
             ]
         )
+        lib.wbmpc_direct_set_threads.argtypes = [ctypes.c_void_p, ctypes.c_int]
         lib.wbmpc_direct_set_option_double.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_double]
         lib.wbmpc_direct_set_option_int.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]
         lib.wbmpc_direct_n_ineq.argtypes = [ctypes.c_void_p]
@@ -207,6 +229,17 @@ class DirectFatrop:
         ] + [_DOUBLE_P] * 9
         lib.wbmpc_direct_solve.restype = ctypes.c_int
         lib.wbmpc_direct_destroy.argtypes = [ctypes.c_void_p]
+
+    def set_threads(self, threads: int) -> None:
+        """Evaluate the stages on ``threads`` threads (1..8) from the next solve on.
+
+        Raises:
+            ValueError: ``threads`` outside 1..8.
+        """
+        checks.integer("threads", threads, low=1, high=MAX_THREADS)
+        if self._lib.wbmpc_direct_set_threads(self._handle, int(threads)):
+            raise ValueError(self._lib.wbmpc_direct_last_error(self._handle).decode())
+        self.threads = int(threads)
 
     def set_option(self, name: str, value: float | int) -> None:
         """Set one of Fatrop's options (``tol``, ``max_iter``, ``bound_push``, ``mu_init``, ...) or the warm

@@ -69,7 +69,7 @@ def _closed_loop_mpc(nodes: int, compiled: bool):
 
     key = (nodes, compiled)
     if key not in _MPCS:
-        solver = SolverSettings(compiled=compiled)
+        solver = SolverSettings(compiled=compiled, threads=1)  # one Dask worker per core
         _MPCS[key] = WholeBodyMPC(load_b1_z1(), OCPSettings(n_nodes=nodes), MPCConfig(), solver)
         _MPCS[key].verbose = False
     return _MPCS[key]
@@ -161,6 +161,7 @@ def _experiment_setup(case: dict, **mpc_kwargs):
     nodes = int(case.get("nodes", nodes))
     if "compiled" in case:
         solver = replace(solver, compiled=bool(case["compiled"]))
+    solver = replace(solver, threads=1)  # one Dask worker per core
     # MPC options a case may switch (comparisons)
     for name in ("kick_recovery", "kick_recovery_phase", "kick_recovery_hold", "kick_ee_release"):
         if name in case and hasattr(config, name):
