@@ -7,7 +7,7 @@ import pytest
 from conftest import forward_progress
 
 from wbmpc import cpin
-from wbmpc.control.mpc import MPCConfig, WholeBodyMPC
+from wbmpc.control.mpc import MPCConfig, SolverSettings, WholeBodyMPC
 from wbmpc.model.robot import load_b1_z1
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCP, OCPSettings
@@ -94,16 +94,25 @@ def test_unknown_formulation_is_named():
         OCPSettings(formulation="rnea")
 
 
-def test_fatrop_detects_the_stages_and_converges_standing(standing):
+def test_fatrop_detects_the_stages_and_converges_standing(robot, standing):
+    """The casadi plugin's structure detection finds every formulation's stages; the default in-process
+    solver (the direct driver) converges, and from the same cold start it is the plugin's algorithm."""
     mpc, cold, warm = standing
-    stats = mpc._solver(cold=True).stats()
-    expected = mpc.ocp.stage_sizes()
+    assert mpc.solver_settings.direct_driver
+    settings = OCPSettings(n_nodes=7, formulation=mpc.ocp.settings.formulation)
+    plugin = WholeBodyMPC(robot, settings, MPCConfig(gait=make_gait("stand")), SolverSettings(direct=False))
+    plugin.verbose = False
+    reference = plugin.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    stats = plugin._solver(cold=True).stats()
+    expected = plugin.ocp.stage_sizes()
     assert list(stats["nx"]) == expected["nx"]
     assert list(stats["nu"]) == expected["nu"]
     assert list(stats["ng"]) == expected["ng"]
     assert cold.success and warm.success, (cold.status, warm.status)
     assert cold.constraint_violation < TOL
     assert warm.iterations <= cold.iterations
+    assert reference.success and cold.iterations == reference.iterations
+    np.testing.assert_allclose(cold.w, reference.w, atol=1e-8, rtol=0)
 
 
 def test_plan_is_a_static_equilibrium_with_consistent_torques(robot, standing):

@@ -407,9 +407,11 @@ def _open(browser, base: str, token: str, name: str):
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     failed = []
     page.on("requestfailed", lambda r: failed.append((r.url, r.failure)))
-    page.goto(f"{base}/lab/tree/{name}?token={token}", timeout=120_000)
-    # The workspace JupyterLab restores may bring back a notebook opened earlier (the Run All one) as the
-    # current tab for a while: wait for this notebook's own tab.
+    # A workspace of its own: the default one would restore the notebooks opened earlier (the Run All one,
+    # with all its outputs) beside this one, which under a loaded machine took JupyterLab past the wait
+    # below (CI, 2026-12-04). The wait is still for this notebook's own tab.
+    workspace = f"wbmpc-{secrets.token_hex(4)}"
+    page.goto(f"{base}/lab/workspaces/{workspace}/tree/{name}?token={token}", timeout=120_000)
     page.wait_for_function(
         "(name) => { const w = window.jupyterapp && window.jupyterapp.shell.currentWidget;"
         " return w && w.context && w.context.isReady && w.context.path.endsWith(name)"

@@ -128,11 +128,9 @@ def test_a_run_folder_without_its_files_is_named_with_the_command_that_writes_th
         load_run(tmp_path)
 
 
-def test_the_direct_driver_in_the_worker_needs_the_compiled_library():
-    with pytest.raises(ValueError, match="direct needs compiled=True"):
-        RuntimeConfig(direct=True, compiled=False)
-    # by default the direct driver when compiled, the in-process plugin otherwise
-    assert RuntimeConfig().direct is True and RuntimeConfig(compiled=False).direct is False
+def test_the_worker_solves_with_the_direct_driver_by_default():
+    # compiled or in process (its VM build); the plugin when told
+    assert RuntimeConfig().direct is True and RuntimeConfig(compiled=False).direct is True
     assert RuntimeConfig(direct=False).direct is False
 
 
@@ -153,5 +151,6 @@ def test_the_worker_recipe_solves_with_the_driver_it_is_told_and_starts_no_relea
                 MPCRecipe(direct=direct, max_iter=15).build()
             solver = built["solver"]
             assert (solver.direct, solver.compiled, solver.max_iter) == (direct, True, 15)
+            assert solver.driver_threads == 1  # the loops have the other cores
             # the release library if cached, but no gcc taking a core from the loops mid-run
             assert solver.release_flags is not None and solver.release_build is False
