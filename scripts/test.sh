@@ -17,8 +17,8 @@ paths+=(tests)
 
 # One pytest worker per core (pytest-xdist), each test file on one worker so that a file's module fixtures
 # (an MPC, a compiled solver) are built once. WBMPC_TEST_WORKERS=0 runs in this process.
-# Then the wall-clock runtime tests (marker "wallclock": robot, controller and MPC worker as processes) in
-# one process with the machine to themselves: a test beside them would take the MPC worker's CPU.
+# Then the wall-clock tests (marker "wallclock": robot, controller and MPC worker as processes; JupyterLab
+# and Chromium) in one process with the machine to themselves: a test beside them would take their CPU.
 workers="${WBMPC_TEST_WORKERS:-auto}"
 status=0
 python -m pytest "${paths[@]}" --nbmake --nbmake-timeout=600 -p no:cacheprovider -q \

@@ -59,11 +59,16 @@ def _chromium() -> str | None:
 
 
 CHROMIUM = _chromium()
-pytestmark = pytest.mark.skipif(
-    CHROMIUM is None,
-    reason="no Chromium executable on PATH (chromium, chromium-browser, google-chrome), no WBMPC_CHROMIUM: "
-    "the browser tests need one (.ci/run installs Debian's chromium with apt-get)",
-)
+pytestmark = [
+    pytest.mark.skipif(
+        CHROMIUM is None,
+        reason="no Chromium executable on PATH (chromium, chromium-browser, google-chrome), no "
+        "WBMPC_CHROMIUM: the browser tests need one (.ci/run installs Debian's chromium with apt-get)",
+    ),
+    # JupyterLab, its kernel and Chromium are processes on the wall clock: beside another test worker (a
+    # compile, solves on both cores) their pages took longer than the 120 s waits in fresh-clone CI runs.
+    pytest.mark.wallclock,
+]
 
 
 def _playwright():

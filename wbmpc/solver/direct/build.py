@@ -150,47 +150,33 @@ def build_vm(directory: Path | None = None, progress: bool = True, force: bool =
     }
     key = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
     folder = Path(directory or codegen.cache_dir()) / f"direct-vm-{key}"
-    folder.mkdir(parents=True, exist_ok=True)
-    library, record = folder / VM_LIBRARY_NAME, folder / "build.json"
-    with open(folder / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not force and library.is_file() and record.is_file():
-            if json.loads(record.read_text()).get("library_sha256") == _sha256(library):
-                return DirectLibrary(library, key, json.loads(record.read_text())["build_s"], False)
+
+    def compile_into(tmp: Path) -> Path:
         if progress:
             print(f"[wbmpc.solver.direct] compiling the VM driver ({key}) ...", flush=True)
-        start = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix=".build-", dir=folder) as tmp:
-            include = lib_dir / "include"
-            _run(
-                [
-                    "g++",
-                    *description["driver_flags"],
-                    "-fPIC",
-                    "-shared",
-                    str(DRIVER_SOURCE),
-                    f"-I{include}",
-                    f"-I{include / 'blasfeo' / 'include'}",
-                    "-o",
-                    str(Path(tmp) / VM_LIBRARY_NAME),
-                    f"-L{lib_dir}",
-                    "-lcasadi",
-                    "-lfatrop",
-                    "-lblasfeo",
-                    f"-Wl,-rpath,{lib_dir}",
-                ],
-                Path(tmp),
-            )
-            os.replace(Path(tmp) / VM_LIBRARY_NAME, library)
-        build_s = time.perf_counter() - start
-        record.write_text(
-            json.dumps(
-                {**description, "key": key, "build_s": build_s, "library_sha256": _sha256(library)}, indent=2
-            )
+        include = lib_dir / "include"
+        _run(
+            [
+                "g++",
+                *description["driver_flags"],
+                "-fPIC",
+                "-shared",
+                str(DRIVER_SOURCE),
+                f"-I{include}",
+                f"-I{include / 'blasfeo' / 'include'}",
+                "-o",
+                str(tmp / VM_LIBRARY_NAME),
+                f"-L{lib_dir}",
+                "-lcasadi",
+                "-lfatrop",
+                "-lblasfeo",
+                f"-Wl,-rpath,{lib_dir}",
+            ],
+            tmp,
         )
-        if progress:
-            print(f"[wbmpc.solver.direct] built {library} in {build_s:.0f} s", flush=True)
-        return DirectLibrary(library, key, build_s, True)
+        return tmp / VM_LIBRARY_NAME
+
+    return _locked_build(folder / VM_LIBRARY_NAME, key, description, compile_into, progress, force)
 
 
 def functions_file(ocp: OCP, directory: Path | None = None) -> Path:
@@ -258,8 +244,41 @@ def build_in(
     """
     lib_dir = casadi_dir()
     folder = Path(folder)
+
+    def compile_into(tmp: Path) -> Path:
+        sources = [Path(src) for src in generate(tmp)]
+        kept = folder / "sources"
+        if kept.resolve() not in {src.parent.resolve() for src in sources}:
+            shutil.rmtree(kept, ignore_errors=True)
+            kept.mkdir()
+            for src in sources:
+                shutil.copy(src, kept / src.name)
+        objects = _compile_all(sources, tmp, tuple(flags), lib_dir)
+        _run(
+            [
+                "g++",
+                "-shared",
+                *[str(o) for o in objects],
+                "-o",
+                str(tmp / LIBRARY_NAME),
+                f"-L{lib_dir}",
+                "-lfatrop",
+                "-lblasfeo",
+                f"-Wl,-rpath,{lib_dir}",
+            ],
+            tmp,
+        )
+        return tmp / LIBRARY_NAME
+
+    return _locked_build(folder / LIBRARY_NAME, key, description, compile_into, progress, force)
+
+
+def _locked_build(library: Path, key: str, description: dict, compile_into, progress: bool, force: bool):
+    """``library`` from the cache, or ``compile_into(tmp) -> built file`` moved there, under the folder's
+    file lock (one build per key at a time, also across processes), with its record ``build.json``."""
+    folder = library.parent
     folder.mkdir(parents=True, exist_ok=True)
-    library, record = folder / LIBRARY_NAME, folder / "build.json"
+    record = folder / "build.json"
     with open(folder / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process dies
         if not force and library.is_file() and record.is_file():
@@ -268,30 +287,8 @@ def build_in(
                 return DirectLibrary(library, key, info["build_s"], False)
         start = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix=".build-", dir=folder) as tmp:
-            tmp = Path(tmp)
-            sources = [Path(src) for src in generate(tmp)]
-            kept = folder / "sources"
-            if kept.resolve() not in {src.parent.resolve() for src in sources}:
-                shutil.rmtree(kept, ignore_errors=True)
-                kept.mkdir()
-                for src in sources:
-                    shutil.copy(src, kept / src.name)
-            objects = _compile_all(sources, tmp, tuple(flags), lib_dir)
-            _run(
-                [
-                    "g++",
-                    "-shared",
-                    *[str(o) for o in objects],
-                    "-o",
-                    str(tmp / LIBRARY_NAME),
-                    f"-L{lib_dir}",
-                    "-lfatrop",
-                    "-lblasfeo",
-                    f"-Wl,-rpath,{lib_dir}",
-                ],
-                tmp,
-            )
-            os.replace(tmp / LIBRARY_NAME, library)  # atomic: readers never see a half-written library
+            built = compile_into(Path(tmp))
+            os.replace(built, library)  # atomic: readers never see a half-written library
         build_s = time.perf_counter() - start
         record.write_text(
             json.dumps(
