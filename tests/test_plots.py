@@ -16,6 +16,7 @@ from wbmpc.viz.plots import (
     heading_velocity,
     plot_closed_loop,
     plot_plan,
+    plot_solve_profiles,
     plot_torques,
     repo_root,
     save_figure,
@@ -202,3 +203,24 @@ def test_committed_sweep_tables_are_found_from_anywhere(tmp_path, monkeypatch):
     assert sweeps.committed_table("robustness_grid")
     with pytest.raises(FileNotFoundError, match=r"data/results/sweeps/no_such_table\.csv is missing"):
         sweeps.committed_table("no_such_table")
+
+
+def test_plot_solve_profiles_stacks_each_variants_mean():
+    """Each bar is the variant's evaluations + Fatrop + the plugin around it, split in its parts."""
+    profile = {"evaluations": 12.0, "solver": 6.0, "search_direction": 5.0, "initialization": 0.5}
+    profile["overhead"] = 1.0
+    variants = {"a": {"profile_mean_ms": profile}, "b": {"profile_mean_ms": {**profile, "evaluations": 2.0}}}
+    fig = plot_solve_profiles(variants, "CPU", 30.0, "target")
+    ax = fig.axes[0]
+    ends = {}
+    for patch in ax.patches:
+        y = round(patch.get_y() + patch.get_height() / 2)
+        ends[y] = max(ends.get(y, 0.0), patch.get_x() + patch.get_width())
+        assert patch.get_width() >= 0
+    assert ends == pytest.approx({0: 19.0, 1: 9.0})
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["a", "b"]
+    assert ax.get_legend() is not None and "target" in [t.get_text() for t in ax.get_legend().get_texts()]
+    with pytest.raises(ValueError, match=r"variant 'c' has no \['overhead'\]"):
+        plot_solve_profiles({"c": {"profile_mean_ms": {k: 1.0 for k in profile if k != "overhead"}}})
+    with pytest.raises(ValueError, match="at least one variant"):
+        plot_solve_profiles({})

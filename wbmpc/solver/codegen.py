@@ -440,44 +440,67 @@ def build_in(
     build kept (``folder``'s ``wbmpc_nlp.c``) with other flags (:mod:`wbmpc.solver.release`).
     """
     folder = Path(folder)
+
+    def compile_into(tmp: Path) -> tuple[Path, dict]:
+        c_file = Path(generate(tmp))
+        c_bytes = c_file.stat().st_size
+        peak_mb = _compile(c_file, tmp / "lib.so", flags, progress, c_bytes)
+        if c_file.resolve() != (folder / "wbmpc_nlp.c").resolve():
+            shutil.copy(c_file, folder / "wbmpc_nlp.c")
+            shutil.copy(c_file.with_suffix(".h"), folder / "wbmpc_nlp.h")
+        return tmp / "lib.so", {"build_peak_mb": peak_mb, "c_bytes": c_bytes}
+
+    info, rebuilt = locked_build(folder / "libwbmpc_nlp.so", key, description, compile_into, _valid, force)
+    library = folder / "libwbmpc_nlp.so"
+    if progress and rebuilt:
+        print(
+            f"[wbmpc.solver.codegen] built {library} in {info['build_s']:.0f} s "
+            f"(gcc peak {info['build_peak_mb']:.0f} MB)",
+            flush=True,
+        )
+    return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], rebuilt)
+
+
+def locked_build(
+    library: Path, key: str, description: dict, compile_into, valid, force: bool = False
+) -> tuple[dict, bool]:
+    """``library`` from its cache folder, or built by ``compile_into(tmp) -> (built file, record fields)``
+    and moved there atomically, under the folder's file lock (one build of a key at a time, also across
+    processes; the lock goes with the process however it ends). Temporary folders of killed builds are
+    removed on the way (:func:`remove_stale_builds`). Every compiled library of the cache is built here.
+
+    Args:
+        library: Where the library lives (its folder is the key folder, with ``build.json`` beside it).
+        key, description: The cache key and what it was computed from (written into the record).
+        compile_into: Builds into the temporary folder it is given; returns the built file and extra
+            record fields.
+        valid: ``valid(library, record) -> bool``: a cached library that can be used as it is.
+        force: Rebuild even if a valid library is cached.
+
+    Returns:
+        The build record (``build_s`` [s], ``library_sha256``, the extra fields) and whether it was built now.
+    """
+    folder = Path(library).parent
     folder.mkdir(parents=True, exist_ok=True)
-    library, record = folder / "libwbmpc_nlp.so", folder / "build.json"
+    record = folder / "build.json"
     with open(folder / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process dies
         remove_stale_builds(folder.parent, locked=folder)
-        if not force and _valid(library, record):
-            info = json.loads(record.read_text())
-            return CompiledNLP(library, key, info["build_s"], info["build_peak_mb"], info["c_bytes"], False)
+        if not force and valid(library, record):
+            return json.loads(record.read_text()), False
         start = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix=f"{_TMP_PREFIX}{os.getpid()}-", dir=folder) as tmp:
-            tmp = Path(tmp)
-            c_file = Path(generate(tmp))
-            c_bytes = c_file.stat().st_size
-            peak_mb = _compile(c_file, tmp / "lib.so", flags, progress, c_bytes)
-            if c_file.resolve() != (folder / "wbmpc_nlp.c").resolve():
-                shutil.copy(c_file, folder / "wbmpc_nlp.c")
-                shutil.copy(c_file.with_suffix(".h"), folder / "wbmpc_nlp.h")
-            os.replace(tmp / "lib.so", library)  # atomic: readers never see a half-written library
-        build_s = time.perf_counter() - start
-        record.write_text(
-            json.dumps(
-                {
-                    **description,
-                    "key": key,
-                    "build_s": build_s,
-                    "build_peak_mb": peak_mb,
-                    "c_bytes": c_bytes,
-                    "library_sha256": _sha256(library),
-                },
-                indent=2,
-            )
-        )
-        if progress:
-            print(
-                f"[wbmpc.solver.codegen] built {library} in {build_s:.0f} s (gcc peak {peak_mb:.0f} MB)",
-                flush=True,
-            )
-        return CompiledNLP(library, key, build_s, peak_mb, c_bytes, True)
+            built, extra = compile_into(Path(tmp))
+            os.replace(built, library)  # atomic: readers never see a half-written library
+        info = {
+            **description,
+            "key": key,
+            "build_s": time.perf_counter() - start,
+            **extra,
+            "library_sha256": _sha256(library),
+        }
+        record.write_text(json.dumps(info, indent=2))
+        return info, True
 
 
 def remove_stale_builds(directory: Path | None = None, locked: Path | None = None) -> list[Path]:

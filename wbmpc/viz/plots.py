@@ -328,3 +328,46 @@ def plot_plan(plan, robot: Robot, commands=None) -> Figure:
         f"{1e3 * plan.solve_time:.0f} ms"
     )
     return fig
+
+
+PROFILE_PARTS = ("evaluations", "search_direction", "initialization", "rest of Fatrop", "overhead")
+
+
+def plot_solve_profiles(
+    variants: Mapping[str, dict], title: str = "", line_ms: float | None = None, line_label: str = ""
+) -> Figure:
+    """Stacked bars of where each variant's mean solve goes, from a ``wbmpc.studies.realtime`` record.
+
+    Args:
+        variants: ``record["variants"]``: per variant a ``profile_mean_ms`` with ``evaluations``, ``solver``,
+            ``search_direction``, ``initialization`` and ``overhead`` [ms] (the rest of Fatrop is
+            ``solver`` minus its search direction and initialisation).
+        title: Axes title (e.g. the CPU).
+        line_ms: A vertical reference line [ms] (e.g. a target), with ``line_label``.
+
+    Raises:
+        ValueError: no variants, or a profile without one of those entries (names the variant).
+    """
+    if not variants:
+        raise ValueError("plot_solve_profiles needs at least one variant")
+    needed = ("evaluations", "solver", "search_direction", "initialization", "overhead")
+    for name, v in variants.items():
+        missing = [k for k in needed if k not in v.get("profile_mean_ms", {})]
+        if missing:
+            raise ValueError(f"variant {name!r} has no {missing} in its profile_mean_ms")
+    fig = Figure(figsize=(7, 0.45 * len(variants) + 1), layout="constrained")
+    ax = fig.add_subplot()
+    for i, v in enumerate(variants.values()):
+        p = dict(v["profile_mean_ms"])
+        p["rest of Fatrop"] = p["solver"] - p["search_direction"] - p["initialization"]
+        left = 0.0
+        for j, part in enumerate(PROFILE_PARTS):
+            ax.barh(i, p[part], left=left, color=f"C{j}", label=part if i == 0 else None)
+            left += p[part]
+    ax.set_yticks(range(len(variants)), list(variants), fontsize=8)
+    ax.invert_yaxis()
+    if line_ms is not None:
+        ax.axvline(line_ms, color="k", ls="--", lw=1, label=line_label or None)
+    ax.set(xlabel="mean solve time [ms]", title=title)
+    ax.legend(fontsize=7, loc="lower right")
+    return fig

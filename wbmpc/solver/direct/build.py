@@ -21,7 +21,6 @@ import os
 import shutil
 import subprocess
 import tempfile
-import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -274,30 +273,22 @@ def build_in(
 
 
 def _locked_build(library: Path, key: str, description: dict, compile_into, progress: bool, force: bool):
-    """``library`` from the cache, or ``compile_into(tmp) -> built file`` moved there, under the folder's
-    file lock (one build per key at a time, also across processes), with its record ``build.json``."""
-    folder = library.parent
-    folder.mkdir(parents=True, exist_ok=True)
-    record = folder / "build.json"
-    with open(folder / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process dies
-        if not force and library.is_file() and record.is_file():
-            info = json.loads(record.read_text())
-            if info.get("library_sha256") == _sha256(library):
-                return DirectLibrary(library, key, info["build_s"], False)
-        start = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix=".build-", dir=folder) as tmp:
-            built = compile_into(Path(tmp))
-            os.replace(built, library)  # atomic: readers never see a half-written library
-        build_s = time.perf_counter() - start
-        record.write_text(
-            json.dumps(
-                {**description, "key": key, "build_s": build_s, "library_sha256": _sha256(library)}, indent=2
-            )
+    """``library`` from the cache or built by ``compile_into(tmp) -> built file``
+    (:func:`wbmpc.solver.codegen.locked_build`)."""
+
+    def valid(library: Path, record: Path) -> bool:
+        return (
+            library.is_file()
+            and record.is_file()
+            and json.loads(record.read_text()).get("library_sha256") == _sha256(library)
         )
-        if progress:
-            print(f"[wbmpc.solver.direct] built {library} in {build_s:.0f} s", flush=True)
-        return DirectLibrary(library, key, build_s, True)
+
+    info, rebuilt = codegen.locked_build(
+        library, key, description, lambda tmp: (compile_into(tmp), {}), valid, force
+    )
+    if progress and rebuilt:
+        print(f"[wbmpc.solver.direct] built {library} in {info['build_s']:.0f} s", flush=True)
+    return DirectLibrary(library, key, info["build_s"], rebuilt)
 
 
 def _generate(ocp: OCP, folder: Path) -> list[Path]:
