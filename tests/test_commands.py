@@ -349,3 +349,18 @@ def test_new_settings_refuse_bad_values(make, words):
     """Bad values of this issue's new settings are refused at construction, naming the field."""
     with pytest.raises(ValueError, match=words):
         make()
+
+
+def test_validated_commands_are_float_arrays():
+    """validated() converts lists and integers (a new Commands) and keeps float arrays as they are."""
+    given = Commands(base_linear_velocity=[1, 0, 0], ee_force=(0, 0, -5), base_height=1)
+    out = given.validated()
+    assert out is not given and given.base_linear_velocity == [1, 0, 0]  # the caller's left alone
+    for name in ("base_linear_velocity", "base_angular_velocity", "ee_velocity", "ee_force"):
+        value = getattr(out, name)
+        assert isinstance(value, np.ndarray) and value.dtype == float and value.shape == (3,)
+    np.testing.assert_array_equal(out.ee_force, [0.0, 0.0, -5.0])
+    assert type(out.base_height) is float and out.base_height == 1.0
+    again = out.validated()
+    for name in ("base_linear_velocity", "base_angular_velocity", "ee_velocity", "ee_force"):
+        assert getattr(again, name) is getattr(out, name)  # nothing converted twice

@@ -396,3 +396,12 @@ def test_force_distribution_edge_cases():
         default_force_distribution(np.ones(4, bool), 0.0)
     with pytest.raises(ValueError, match=r"front_ratio must be a finite number in \[0, 1\], got nan"):
         default_force_distribution(np.ones(4, bool), 10.0, front_ratio=float("nan"))
+    # 0/1 numbers are stance flags too (the same forces as bools); anything else is refused.
+    flags = np.array([[1, 0, 1, 1], [0, 1, 1, 0]]).T
+    for numeric in (flags, flags.astype(float)):
+        np.testing.assert_array_equal(
+            default_force_distribution(numeric, 10.0, front_ratio=0.6),
+            default_force_distribution(flags.astype(bool), 10.0, front_ratio=0.6),
+        )
+    with pytest.raises(ValueError, match="contact must be a bool array"):
+        default_force_distribution(np.array([1.0, 0.5, 1.0, 1.0]), 10.0)

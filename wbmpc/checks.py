@@ -34,15 +34,20 @@ def number(
         unit: Unit shown in the message (e.g. ``"s"``).
         finite: Refuse NaN and inf (NaN is always refused).
     """
-    allowed = _range_text(low, high, low_open, high_open, unit)
+    # The message is written only for a refusal: this runs several times in every control tick.
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a {allowed}, got {value!r}")
-    x = float(value)
-    if math.isnan(x) or (finite and math.isinf(x)):
-        raise ValueError(f"{name} must be a {allowed}, got {value!r}")
-    if low is not None and (x < low or (low_open and x == low)):
-        raise ValueError(f"{name} must be a {allowed}, got {value!r}")
-    if high is not None and (x > high or (high_open and x == high)):
+        x = None
+    else:
+        x = float(value)
+        if (
+            math.isnan(x)
+            or (finite and math.isinf(x))
+            or (low is not None and (x < low or (low_open and x == low)))
+            or (high is not None and (x > high or (high_open and x == high)))
+        ):
+            x = None
+    if x is None:
+        allowed = _range_text(low, high, low_open, high_open, unit)
         raise ValueError(f"{name} must be a {allowed}, got {value!r}")
     return x
 

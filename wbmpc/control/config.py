@@ -99,7 +99,7 @@ class Commands:
                 pass  # one command per stage; the stage count is checked when the parameters are packed
             elif value.shape != (3,):
                 raise ValueError(f"command {name} must have shape (3,), got {value.shape}")
-            if not np.all(np.isfinite(value)):
+            if not np.isfinite(value).all():
                 raise ValueError(f"command {name} contains NaN or inf: {value}")
             out[name] = value
         if self.gait is not None and not isinstance(self.gait, Gait | GaitSchedule):
@@ -110,6 +110,8 @@ class Commands:
             out["base_height"] = checks.number(
                 "command base_height", self.base_height, low=0.0, high=5.0, low_open=True, unit="m"
             )
+        if all(value is getattr(self, name) for name, value in out.items()):
+            return self  # already float arrays and a float height: nothing to convert (every tick)
         return replace(self, **out)
 
 
@@ -345,4 +347,5 @@ class MPCSolution:
 
     @property
     def node_times(self) -> np.ndarray:
+        """Times of the plan's nodes [s] (N,): ``t`` and the cumulated ``dts``."""
         return node_times(self.dts, self.t)

@@ -16,7 +16,7 @@ from wbmpc.control.config import MPCSolution
 from wbmpc.model.robot import Robot
 from wbmpc.model.statics import static_equilibrium
 from wbmpc.ocp import OCP
-from wbmpc.ocp.time_grid import interp_rows, node_times
+from wbmpc.ocp.time_grid import interp_rows, interp_weights, node_times
 
 __all__ = ["cold_guess", "shifted_guess"]
 
@@ -78,16 +78,21 @@ def shifted_guess(
     t_old = previous.node_times
     # Express the old configurations in the old chart and interpolate there (linear in the tangent).
     q_ref = previous.q[0]
+    # The nodes' and the stages' interpolation weights, each computed once (shared by the arrays below).
+    nodes = interp_weights(t_new, t_old) if len(t_old) > 1 else None
+    stages = interp_weights(t_new[:-1], t_old[:-1]) if len(t_old) > 2 else None
     dq_old = np.array([pin.difference(model, q_ref, q) for q in previous.q])
-    dq_interp = interp_rows(t_new, t_old, dq_old)
+    dq_interp = interp_rows(t_new, t_old, dq_old, nodes)
     q_new = [pin.integrate(model, q_ref, d) for d in dq_interp]
     dq = np.array([pin.difference(model, q_hat, q) for q in q_new])
     dq[0] = 0.0
-    v = interp_rows(t_new, t_old, previous.v)
+    v = interp_rows(t_new, t_old, previous.v, nodes)
     v[0] = params["v_hat"]
-    a = interp_rows(t_new[:-1], t_old[:-1], previous.a)
+    a = interp_rows(t_new[:-1], t_old[:-1], previous.a, stages)
     # Torques on every stage (held after the last planned one): formulations take what they use.
-    tau = interp_rows(t_new[:-1], t_old[: len(previous.tau)], previous.tau)
+    tau_times = t_old[: len(previous.tau)]
+    tau_weights = stages if len(tau_times) == len(t_old) - 1 else None  # else a shorter torque horizon
+    tau = interp_rows(t_new[:-1], tau_times, previous.tau, tau_weights)
     forces = np.zeros((N - 1, len(robot.contact_frames), 3))
     forces[:, : robot.n_feet, 2] = params["force_des"].T
     if robot.has_arm:

@@ -401,7 +401,7 @@ class WholeBodyMPC:
         # self.previous is always the last converged plan (fallbacks are not stored).
         cold = not warm_start or self.previous is None
         x0 = None if cold else self.shifted_guess(self.previous, q_hat, t, params)
-        if x0 is None or not np.all(np.isfinite(x0)):  # Fatrop does not return from a NaN guess
+        if x0 is None or not np.isfinite(x0).all():  # Fatrop does not return from a NaN guess
             x0, cold = self.cold_guess(q_hat, v_hat, params), True
         args = {"x0": x0, "p": p, "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
         if not cold and self.config.dual_warm_start and self.previous.lam_g is not None:
@@ -511,7 +511,7 @@ class WholeBodyMPC:
             w = np.array(out["x"]).ravel()
             g = np.array(out["g"]).ravel()
             violation = float(np.max(np.maximum(0.0, np.maximum(self.ocp.lbg - g, g - self.ocp.ubg))))
-            success = bool(stats.get("success", False)) and np.all(np.isfinite(w))
+            success = bool(stats.get("success", False)) and bool(np.isfinite(w).all())
             status, reason = solver_status(self.solver_settings.solver, stats)
             if not success and status == "success":  # a non-finite iterate
                 status, reason = "non_finite_solution", "the solver returned NaN or inf"

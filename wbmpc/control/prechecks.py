@@ -93,6 +93,8 @@ def ee_force_feasibility(
     tau, names, limits = arm_hold_torques(robot, q, force, info=info)
     for name, needed, limit in zip(names, tau, limits, strict=True):
         ratio = abs(needed) / limit if limit > 0 else math.inf
+        if ratio <= TORQUE_WARNING_FRACTION:
+            continue  # the every-tick case: nothing to report
         data = {"joint": name, "needed": float(needed), "limit": float(limit), "force": force.tolist()}
         if ratio > TORQUE_YIELD_FACTOR:
             findings.append(
@@ -116,7 +118,7 @@ def ee_force_feasibility(
                     data,
                 )
             )
-        elif ratio > TORQUE_WARNING_FRACTION:
+        else:
             findings.append(
                 Finding(
                     "ee_force_near_torque_limit",
@@ -324,7 +326,7 @@ def joint_state_limits(
     """
     q = np.asarray(q, dtype=float)
     v = np.asarray(v, dtype=float)
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+    if not (np.isfinite(q).all() and np.isfinite(v).all()):
         bad = [int(i) for i in np.flatnonzero(~np.isfinite(np.concatenate([q, v])))]
         return [
             Finding("state_not_finite", "error", f"state has NaN or inf at indices {bad}", {"indices": bad})
@@ -383,7 +385,7 @@ def absurd_measurement(robot: Robot, q: np.ndarray, v: np.ndarray, *, info: _Rob
     """
     q = np.asarray(q, dtype=float)
     v = np.asarray(v, dtype=float)
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+    if not (np.isfinite(q).all() and np.isfinite(v).all()):
         return []
     info = _resolve(robot, info)
     found = []
@@ -596,7 +598,7 @@ def run_prechecks(
         findings += arm_commands_without_arm(robot, commands)
         state_ok = not any(f.code == "state_not_finite" for f in findings)
         ee_force = np.asarray(getattr(commands, "ee_force", np.zeros(3)), dtype=float)
-        if state_ok and ee_force.shape == (3,) and np.all(np.isfinite(ee_force)):
+        if state_ok and ee_force.shape == (3,) and np.isfinite(ee_force).all():
             findings += ee_force_feasibility(robot, q, ee_force, mu, info=info)
         if gait is not None:
             findings += speed_feasibility(

@@ -24,7 +24,7 @@ import pinocchio as pin
 
 from wbmpc.model.robot import heading
 from wbmpc.model.statics import default_force_distribution
-from wbmpc.ocp.time_grid import interp_rows, node_times
+from wbmpc.ocp.time_grid import interp_row, node_times
 
 #: An aborted swing's descent aims this far below the ground [m], so that the foot reaches it.
 TOUCHDOWN_DEPTH = 0.005
@@ -82,7 +82,7 @@ class PushRecovery:
             return False
         pushed = False
         if previous is not None:
-            v_plan = interp_rows(np.array([t]), previous.node_times, previous.v)[0]
+            v_plan = interp_row(t, previous.node_times, previous.v)
             pushed = bool(np.linalg.norm(v_hat[0:2] - v_plan[0:2]) > cfg.kick_recovery)
         if not (pushed or self.recovering):
             return False  # the every-tick case: nothing more to compute

@@ -33,6 +33,11 @@ import pinocchio as pin
 from wbmpc import checks
 from wbmpc.model.robot import FRONT_FEET, Robot
 
+# FRONT_FEET as slices of the FOOT_NAMES rows (basic indexing: the force targets are computed every tick).
+_FRONT, _REAR = slice(0, 2), slice(2, 4)
+if FRONT_FEET.tolist() != [True, True, False, False]:
+    raise ImportError("wbmpc.model.statics: _FRONT/_REAR no longer match FRONT_FEET")
+
 
 def default_force_distribution(contact, mass: float, gravity: float = 9.81, front_ratio: float = 0.5):
     """Nominal vertical contact forces [N] carrying the weight m g over the stance feet.
@@ -51,19 +56,27 @@ def default_force_distribution(contact, mass: float, gravity: float = 9.81, fron
         Array with the shape of `contact`; each column sums to m g if any foot is in stance.
     """
     contact = np.asarray(contact)
-    if contact.shape[:1] != (4,) or contact.ndim > 2 or not np.all((contact == 0) | (contact == 1)):
+    if (
+        contact.shape[:1] != (4,)
+        or contact.ndim > 2
+        or (contact.dtype != bool and not ((contact == 0) | (contact == 1)).all())
+    ):
         raise ValueError(f"contact must be a bool array of shape (4,) or (4, n), got shape {contact.shape}")
     weight = checks.number("mass", mass, low=0.0, low_open=True, unit="kg")
     weight *= checks.number("gravity", gravity, low=0.0, low_open=True, unit="m/s^2")
     checks.number("front_ratio", front_ratio, low=0.0, high=1.0)
     c = contact.astype(bool).reshape(4, -1)
-    n_front, n_rear = c[FRONT_FEET].sum(axis=0), c[~FRONT_FEET].sum(axis=0)
+    # Rows in FOOT_NAMES order: the front feet are rows 0-1 (FRONT_FEET); slices, as this runs every tick.
+    n_front, n_rear = c[_FRONT].sum(axis=0), c[_REAR].sum(axis=0)
     both = (n_front > 0) & (n_rear > 0)
     w_front = np.where(both, front_ratio, (n_front > 0).astype(float)) * weight
     w_rear = np.where(both, 1.0 - front_ratio, (n_rear > 0).astype(float)) * weight
     per_front = w_front / np.maximum(n_front, 1)
     per_rear = w_rear / np.maximum(n_rear, 1)
-    forces = c * np.where(FRONT_FEET[:, None], per_front[None, :], per_rear[None, :])
+    forces = np.empty(c.shape)
+    forces[_FRONT] = per_front
+    forces[_REAR] = per_rear
+    forces *= c
     return forces.reshape(contact.shape)
 
 

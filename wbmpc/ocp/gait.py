@@ -468,7 +468,7 @@ class SwingParams:
 
 def _check_swing(phi, T, h, v_lo, v_td):
     phi = np.asarray(phi, dtype=float)
-    if not np.all((phi >= 0.0) & (phi <= 1.0)):
+    if not ((phi >= 0.0) & (phi <= 1.0)).all():
         raise ValueError("phi must be in [0, 1]")
     return phi, _finite("T", T, positive=True), _finite("h", h), _finite("v_lo", v_lo), _finite("v_td", v_td)
 

@@ -83,11 +83,14 @@ def node_times(dts, t0: float = 0.0) -> np.ndarray:
     dts = np.asarray(dts, dtype=float)
     if dts.ndim != 1 or dts.size == 0:
         raise ValueError(f"dts must be a non-empty 1-D array, got shape {dts.shape}")
-    if not np.all(np.isfinite(dts)) or np.any(dts <= 0.0):
+    # One reduction and a scalar test (this runs several times per control tick): min > 0 refuses NaN
+    # and steps <= 0; with every step > 0 the sum is finite exactly when every step is.
+    offsets = np.cumsum(dts) if dts.min() > 0.0 else None
+    if offsets is None or not math.isfinite(offsets[-1]):
         raise ValueError("dts must be finite and > 0 [s]")
     if not math.isfinite(float(t0)):
         raise ValueError(f"t0 must be finite, got {t0}")
-    return float(t0) + np.concatenate(([0.0], np.cumsum(dts)))
+    return float(t0) + np.concatenate(([0.0], offsets))
 
 
 def symbolic_geometric_time_steps(n_nodes: int, dt_min, dt_max) -> list:
@@ -118,15 +121,42 @@ def horizon_for(n_nodes: int, dt_min: float, dt_max: float) -> float:
     return float(np.sum(geometric_time_steps(n_nodes, dt_min, dt_max)))
 
 
-def interp_rows(t_new: np.ndarray, t_old: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Linear interpolation of each column of ``rows`` (len(t_old), n) at ``t_new`` (held at the ends)."""
+def interp_weights(t_new: np.ndarray, t_old: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows ``i`` (len(t_new),) and weights ``w`` (len(t_new), 1) of :func:`interp_rows` from
+    ``t_old`` (len >= 2, increasing) to ``t_new``: ``(1 - w) * rows[i] + w * rows[i + 1]`` (held at the
+    ends). Computed once for several arrays sampled on the same times."""
+    # np.minimum/maximum: np.clip's wrapper costs more than the interpolation at these sizes
+    i = np.minimum(np.maximum(np.searchsorted(t_old, t_new, side="right") - 1, 0), len(t_old) - 2)
+    t0 = t_old[i]
+    w = np.minimum(np.maximum((t_new - t0) / (t_old[i + 1] - t0), 0.0), 1.0)[:, None]
+    return i, w
+
+
+def interp_row(t: float, t_old: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """:func:`interp_rows` at the one time ``t`` [s]: the row (n,), the same numbers, without the array
+    bookkeeping (a few microseconds, for a check that runs every control tick)."""
+    rows = np.asarray(rows)
+    if len(t_old) == 1:
+        return rows[0].copy()
+    i = min(max(int(np.searchsorted(t_old, t, side="right")) - 1, 0), len(t_old) - 2)
+    t0 = float(t_old[i])
+    w = min(max((float(t) - t0) / (float(t_old[i + 1]) - t0), 0.0), 1.0)
+    return (1.0 - w) * rows[i] + w * rows[i + 1]
+
+
+def interp_rows(
+    t_new: np.ndarray,
+    t_old: np.ndarray,
+    rows: np.ndarray,
+    weights: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Linear interpolation of each column of ``rows`` (len(t_old), n) at ``t_new`` (held at the ends).
+
+    ``weights``: :func:`interp_weights` of these times, if already computed (the result is the same)."""
     rows = np.asarray(rows)
     if rows.size == 0:
         return rows
     if len(t_old) == 1:
         return np.repeat(rows[:1], len(t_new), axis=0)
-    # np.minimum/maximum: np.clip's wrapper costs more than the interpolation at these sizes
-    i = np.minimum(np.maximum(np.searchsorted(t_old, t_new, side="right") - 1, 0), len(t_old) - 2)
-    t0 = t_old[i]
-    w = np.minimum(np.maximum((t_new - t0) / (t_old[i + 1] - t0), 0.0), 1.0)[:, None]
+    i, w = interp_weights(t_new, t_old) if weights is None else weights
     return (1.0 - w) * rows[i] + w * rows[i + 1]

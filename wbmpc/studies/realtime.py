@@ -46,6 +46,7 @@ OPT_IN = (
     "direct, in-process, native",
     "direct, in-process, native, 1 thread",
     "direct, native, -O3 -march=native, 2 threads",
+    "baseline direct, native, -O3 -march=native",
 )
 #: The variants that solve with the direct Fatrop driver (wbmpc.solver.direct) and its evaluation threads
 #: (None: the settings' default). The others pass direct=False (the plugin), except the baselines.
@@ -55,6 +56,7 @@ DIRECT = {
     "direct, native, -O3 -march=native, 2 threads": 2,
     "direct, in-process, native": None,
     "direct, in-process, native, 1 thread": 1,
+    "baseline direct, native, -O3 -march=native": None,  # a baseline that has the direct driver
 }
 VARIANTS = {
     "compiled, native": (True, "native", {}, False, DEFAULT),
@@ -76,6 +78,8 @@ VARIANTS = {
     # Opt-in: a baseline that has the native BLASFEO (e.g. 0074138, issue 22's reference).
     "baseline compiled, native, -O3 -march=native": (True, "native", {}, True, RELEASE),
     "baseline in-process": (False, "generic", {}, True, DEFAULT),
+    # Opt-in: the direct driver of a baseline that has it (to compare the Python around two drivers' calls).
+    "baseline direct, native, -O3 -march=native": (True, "native", {}, True, RELEASE),
 }
 
 _WORKER = """
@@ -88,7 +92,7 @@ from wbmpc.ocp.gait import make_gait
 from wbmpc.sim.closed_loop import ClosedLoopConfig, run_closed_loop
 compiled, steps, warmup = {compiled}, {steps}, {warmup}
 flags = {{"compile_flags": {flags}}} if {flags} != ("-O1",) else {{}}
-if not {baseline}:  # a checkout before the direct driver has no such settings
+if {direct} or not {baseline}:  # a checkout before the direct driver has no such settings
     flags["direct"] = {direct}
     if {threads} is not None:
         flags["threads"] = {threads}

@@ -16,6 +16,7 @@ Example:
 from __future__ import annotations
 
 import ctypes
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -329,7 +330,7 @@ class DirectFatrop:
         else:
             status, reason = f"fatrop_status_{flag}", f"Fatrop returned the unknown flag {flag}."
         w = self._w.copy()
-        success = flag == 0 and bool(np.all(np.isfinite(w)))
+        success = flag == 0 and (math.isfinite(w.dot(w)) or bool(np.isfinite(w).all()))
         if flag == 0 and not success:
             status, reason = "non_finite_solution", "the solver returned NaN or inf"
         timings = {
@@ -368,7 +369,8 @@ def _vector(name: str, value, n: int) -> np.ndarray:
     array = np.ascontiguousarray(np.asarray(value, dtype=float).ravel())
     if array.shape != (n,):
         raise ValueError(f"{name} must have {n} entries, got shape {np.shape(value)}")
-    if not np.all(np.isfinite(array)):
+    # x . x is finite for a finite vector (unless it overflows: then the elementwise test decides).
+    if not math.isfinite(array.dot(array)) and not np.isfinite(array).all():
         raise ValueError(f"{name} contains NaN or inf")
     return array
 
