@@ -1993,3 +1993,22 @@ def test_cli_node_bound_matches_the_ocp():
     from wbmpc.studies import cli_checks
 
     assert cli_checks.MAX_NODES == MAX_NODES
+
+
+def test_the_one_dot_product_finiteness_test_matches_the_elementwise_one():
+    """checks.all_finite (the per-tick finiteness test of the readings, the plant's torques, the gait's times
+    and the direct driver's vectors) says what np.isfinite says, also where x . x overflows."""
+    rng = np.random.default_rng(5)
+    cases = [rng.normal(size=40), np.full(40, 1e200), np.array([1e308, -1e308]), rng.normal(size=(4, 6))]
+    for bad in (NAN, INF, -INF):
+        for base in (rng.normal(size=40), np.full(40, 1e200)):
+            x = base.copy()
+            x[17] = bad
+            cases.append(x)
+    with np.errstate(over="ignore"):  # NumPy's remark on the overflowing squares
+        for x in cases:
+            assert checks.all_finite(x) == bool(np.isfinite(x).all()), x
+        big = checks.array("tau", np.full(3, 1e200), 3)  # finite, though its square overflows: accepted
+        assert np.all(big == 1e200)
+        with pytest.raises(ValueError, match="tau must be finite"):
+            checks.array("tau", [1e200, INF, 0.0], 3)

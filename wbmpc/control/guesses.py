@@ -79,8 +79,8 @@ def shifted_guess(
     # Express the old configurations in the old chart and interpolate there (linear in the tangent).
     q_ref = previous.q[0]
     # The nodes' and the stages' interpolation weights, each computed once (shared by the arrays below).
-    nodes = interp_weights(t_new, t_old) if len(t_old) > 1 else None
-    stages = interp_weights(t_new[:-1], t_old[:-1]) if len(t_old) > 2 else None
+    nodes = interp_weights(t_new, t_old)  # a plan has >= 2 nodes
+    stages = interp_weights(t_new[:-1], t_old[:-1]) if len(t_old) > 2 else None  # one stage: held
     dq_old = np.array([pin.difference(model, q_ref, q) for q in previous.q])
     dq_interp = interp_rows(t_new, t_old, dq_old, nodes)
     q_new = [pin.integrate(model, q_ref, d) for d in dq_interp]

@@ -47,6 +47,8 @@ from typing import NamedTuple
 import casadi as ca
 import numpy as np
 
+from wbmpc import checks
+
 SCHEDULE_TICK = 5e-4  # [s] resolution of every contact schedule: the default plant step
 
 
@@ -76,8 +78,7 @@ class GaitSample(NamedTuple):
 def to_ticks(times, tick: float = SCHEDULE_TICK) -> np.ndarray:
     """Times [s] (1-D array) as the nearest integer ticks of ``tick`` [s] (int64)."""
     times = np.asarray(times, dtype=float)
-    # t . t is finite for finite times (unless it overflows: then the elementwise test decides).
-    if times.ndim != 1 or not (math.isfinite(times.dot(times)) or np.isfinite(times).all()):
+    if times.ndim != 1 or not checks.all_finite(times):
         raise ValueError(f"times must be a finite 1-D array [s], got shape {times.shape}")
     return np.rint(times / tick).astype(np.int64)
 

@@ -445,9 +445,8 @@ class PyBulletPlant(SceneBodies, ContactReadings, Plant):
         del contact
         cid, body = self._client, self._body
         tau = tau_joints  # read only: no copy of a valid array (the motors' torques, every step)
-        if not (type(tau) is np.ndarray and tau.dtype == np.float64 and tau.shape == (self._nj,)) or not (
-            math.isfinite(tau.dot(tau)) or np.isfinite(tau).all()
-        ):
+        exact = type(tau) is np.ndarray and tau.dtype == np.float64 and tau.shape == (self._nj,)
+        if not (exact and checks.all_finite(tau)):
             tau = checks.array("tau_joints", tau_joints, self._nj)
         if self._clip_torques:
             clipped = np.abs(tau) > self._tau_limits

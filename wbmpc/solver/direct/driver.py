@@ -16,7 +16,6 @@ Example:
 from __future__ import annotations
 
 import ctypes
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -330,7 +329,7 @@ class DirectFatrop:
         else:
             status, reason = f"fatrop_status_{flag}", f"Fatrop returned the unknown flag {flag}."
         w = self._w.copy()
-        success = flag == 0 and (math.isfinite(w.dot(w)) or bool(np.isfinite(w).all()))
+        success = flag == 0 and checks.all_finite(w)
         if flag == 0 and not success:
             status, reason = "non_finite_solution", "the solver returned NaN or inf"
         timings = {
@@ -369,8 +368,7 @@ def _vector(name: str, value, n: int) -> np.ndarray:
     array = np.ascontiguousarray(np.asarray(value, dtype=float).ravel())
     if array.shape != (n,):
         raise ValueError(f"{name} must have {n} entries, got shape {np.shape(value)}")
-    # x . x is finite for a finite vector (unless it overflows: then the elementwise test decides).
-    if not math.isfinite(array.dot(array)) and not np.isfinite(array).all():
+    if not checks.all_finite(array):
         raise ValueError(f"{name} contains NaN or inf")
     return array
 
